@@ -1,0 +1,1 @@
+//! HDR and 8-bit file formats.

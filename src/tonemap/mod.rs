@@ -1,0 +1,274 @@
+//! Tone mapping (HDR -> display values in [0, 1]) and camera response curves
+//! (8-bit codes <-> linear exposure).
+
+pub mod response;
+
+pub use response::Response;
+
+use crate::image::{luminance, HdrImage};
+
+/// Parameters of the photoreceptor operator of Reinhard & Devlin 2005, "Dynamic range
+/// reduction inspired by photoreceptor physiology" (IEEE TVCG 11(1)). The thesis used
+/// it with its defaults to turn probes into SDR images for feature matching.
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Reinhard05 {
+    /// Overall intensity `f` in [-8, 8]; the paper's default is 0.
+    pub intensity: f32,
+    /// Contrast `m` in [0.3, 1); `None` derives it from the image's log-luminance
+    /// range as the paper suggests: `m = 0.3 + 0.7 k^1.4`.
+    pub contrast: Option<f32>,
+    /// Light adaptation `a` in [0, 1]: 1 adapts to each pixel, 0 to the image mean.
+    pub light_adapt: f32,
+    /// Chromatic adaptation `c` in [0, 1]: 0 adapts to luminance, 1 per channel.
+    pub color_adapt: f32,
+    /// Display gamma applied after the operator and min/max normalisation.
+    pub gamma: f32,
+}
+
+impl Default for Reinhard05 {
+    fn default() -> Self {
+        Reinhard05 {
+            intensity: 0.0,
+            contrast: None,
+            light_adapt: 1.0,
+            color_adapt: 0.0,
+            gamma: 2.2,
+        }
+    }
+}
+
+/// Clean copy of a sample for tone mapping: NaN and negatives become 0, +inf the
+/// largest finite float, so no operator ever sees a non-finite value.
+#[inline]
+fn sane(v: f32) -> f32 {
+    if v.is_nan() || v <= 0.0 {
+        0.0
+    } else if v.is_infinite() {
+        f32::MAX
+    } else {
+        v
+    }
+}
+
+impl Reinhard05 {
+    /// Tone-maps `img` to display values in `[0, 1]` (interleaved RGB, same size).
+    /// Finite for any input, including constant, all-black and single-sun images.
+    pub fn apply(&self, img: &HdrImage) -> Vec<f32> {
+        let eps = 1e-6f64;
+        let n = img.width() * img.height();
+        let mut out = vec![0.0f32; n * 3];
+        if n == 0 {
+            return out;
+        }
+        // Log statistics of luminance (in f64 so a 1e6 sun does not lose the rest).
+        let mut log_sum = 0.0f64;
+        let mut log_min = f64::INFINITY;
+        let mut log_max = f64::NEG_INFINITY;
+        let mut chan_sum = [0.0f64; 3];
+        let mut lum_sum = 0.0f64;
+        for p in img.pixels() {
+            let p = [sane(p[0]), sane(p[1]), sane(p[2])];
+            let l = luminance(p) as f64;
+            let ll = (l + eps).ln();
+            log_sum += ll;
+            log_min = log_min.min(ll);
+            log_max = log_max.max(ll);
+            lum_sum += l;
+            for k in 0..3 {
+                chan_sum[k] += p[k] as f64;
+            }
+        }
+        let log_mean = log_sum / n as f64;
+        let m = match self.contrast {
+            Some(m) => m as f64,
+            None => {
+                let range = log_max - log_min;
+                let k = if range > 1e-9 {
+                    ((log_max - log_mean) / range).clamp(0.0, 1.0)
+                } else {
+                    0.5
+                };
+                0.3 + 0.7 * k.powf(1.4)
+            }
+        };
+        let f = (-self.intensity as f64).exp();
+        let lum_mean = lum_sum / n as f64;
+        let chan_mean = chan_sum.map(|s| s / n as f64);
+        let (a, c) = (self.light_adapt as f64, self.color_adapt as f64);
+        let mut vmin = f64::INFINITY;
+        let mut vmax = f64::NEG_INFINITY;
+        let mut tmp = vec![0.0f64; n * 3];
+        for (i, p) in img.pixels().enumerate() {
+            let p = [sane(p[0]), sane(p[1]), sane(p[2])];
+            let l = luminance(p) as f64;
+            for k in 0..3 {
+                let ch = p[k] as f64;
+                let local = c * ch + (1.0 - c) * l;
+                let global = c * chan_mean[k] + (1.0 - c) * lum_mean;
+                let adapt = a * local + (1.0 - a) * global;
+                let sigma = (f * adapt).max(0.0).powf(m);
+                let v = if ch + sigma > 0.0 {
+                    ch / (ch + sigma)
+                } else {
+                    0.0
+                };
+                let v = if v.is_finite() { v } else { 1.0 };
+                tmp[3 * i + k] = v;
+                vmin = vmin.min(v);
+                vmax = vmax.max(v);
+            }
+        }
+        let span = vmax - vmin;
+        let inv_gamma = 1.0 / self.gamma.max(1e-3) as f64;
+        for (o, t) in out.iter_mut().zip(&tmp) {
+            let v = if span > 1e-12 { (t - vmin) / span } else { 0.5 };
+            *o = v.clamp(0.0, 1.0).powf(inv_gamma) as f32;
+        }
+        out
+    }
+}
+
+/// Global operator of Reinhard et al. 2002 ("Photographic tone reproduction"): scales
+/// by `key / log-average luminance`, then `L (1 + L / white^2) / (1 + L)` on luminance.
+/// `log_avg` overrides the image's own log-average (to tone-map two images alike).
+pub fn reinhard_global(
+    img: &HdrImage,
+    key: f32,
+    white: Option<f32>,
+    log_avg: Option<f32>,
+) -> Vec<f32> {
+    let la = log_avg
+        .unwrap_or_else(|| log_average_luminance(img))
+        .max(1e-12);
+    let scale = key / la;
+    let w2 = white.map(|w| (w * w).max(1e-12));
+    let mut out = Vec::with_capacity(img.data().len());
+    for p in img.pixels() {
+        let p = [sane(p[0]), sane(p[1]), sane(p[2])];
+        let l = luminance(p) * scale;
+        let ld = match w2 {
+            Some(w2) => l * (1.0 + l / w2) / (1.0 + l),
+            None => l / (1.0 + l),
+        };
+        let ratio = if l > 0.0 { (ld / l).min(f32::MAX) } else { 0.0 };
+        for k in 0..3 {
+            let v = (p[k] * scale * ratio).clamp(0.0, 1.0);
+            out.push(srgb_oetf(if v.is_finite() { v } else { 1.0 }));
+        }
+    }
+    out
+}
+
+/// Geometric mean of luminance, `exp(mean(ln(eps + L)))`, with eps = 1e-6.
+pub fn log_average_luminance(img: &HdrImage) -> f32 {
+    let n = (img.width() * img.height()).max(1);
+    let s: f64 = img
+        .pixels()
+        .map(|p| ((luminance([sane(p[0]), sane(p[1]), sane(p[2])]) as f64) + 1e-6).ln())
+        .sum();
+    (s / n as f64).exp() as f32
+}
+
+/// Exposure by `2^ev`, clip to [0, 1], sRGB encode.
+pub fn exposure_srgb(img: &HdrImage, ev: f32) -> Vec<f32> {
+    let s = 2f32.powf(ev);
+    img.data()
+        .iter()
+        .map(|&v| srgb_oetf((sane(v) * s).clamp(0.0, 1.0)))
+        .collect()
+}
+
+/// sRGB opto-electronic transfer (linear [0, 1] -> encoded [0, 1]).
+#[inline]
+pub fn srgb_oetf(x: f32) -> f32 {
+    if x <= 0.003_130_8 {
+        12.92 * x.max(0.0)
+    } else {
+        1.055 * x.min(1.0).powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Inverse of [`srgb_oetf`].
+#[inline]
+pub fn srgb_eotf(y: f32) -> f32 {
+    if y <= 0.040_45 {
+        y.max(0.0) / 12.92
+    } else {
+        ((y.min(1.0) + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Display values in [0, 1] to 8-bit codes (rounded).
+pub fn quantize(v: &[f32]) -> Vec<u8> {
+    v.iter()
+        .map(|&x| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+        .collect()
+}
+
+/// 8-bit gray (luma of display values) for feature detection.
+pub fn to_gray8(display_rgb: &[f32]) -> Vec<u8> {
+    display_rgb
+        .chunks_exact(3)
+        .map(|c| ((0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]).clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn all_finite_in_unit(v: &[f32]) -> bool {
+        v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x))
+    }
+
+    #[test]
+    fn extreme_images_give_finite_output() {
+        let black = HdrImage::new(16, 8);
+        let constant = HdrImage::from_fn(16, 8, |_, _| [3.0, 3.0, 3.0]);
+        let sun = HdrImage::from_fn(16, 8, |x, y| {
+            if x == 3 && y == 2 {
+                [1e6, 1e6, 9e5]
+            } else {
+                [0.5, 0.4, 0.3]
+            }
+        });
+        let mut bad = HdrImage::from_fn(16, 8, |_, _| [1.0, 1.0, 1.0]);
+        bad.data_mut()[0] = f32::NAN;
+        bad.data_mut()[4] = f32::INFINITY;
+        bad.data_mut()[7] = -2.0;
+        for img in [&black, &constant, &sun, &bad] {
+            assert!(all_finite_in_unit(&Reinhard05::default().apply(img)));
+            assert!(all_finite_in_unit(&reinhard_global(img, 0.18, None, None)));
+            assert!(all_finite_in_unit(&reinhard_global(
+                img,
+                0.18,
+                Some(4.0),
+                None
+            )));
+            assert!(all_finite_in_unit(&exposure_srgb(img, 0.0)));
+        }
+        // The sun does not wash the rest of the image to black.
+        let t = Reinhard05::default().apply(&sun);
+        assert!(t[3 * 20] > 0.05, "{}", t[3 * 20]);
+    }
+
+    #[test]
+    fn reinhard05_is_monotone_in_luminance() {
+        let img = HdrImage::from_fn(64, 1, |x, _| {
+            let v = 10f32.powf(x as f32 / 8.0 - 3.0);
+            [v, v, v]
+        });
+        let t = Reinhard05::default().apply(&img);
+        for x in 1..64 {
+            assert!(t[3 * x] >= t[3 * (x - 1)], "not monotone at {x}");
+        }
+    }
+
+    #[test]
+    fn srgb_round_trip() {
+        for i in 0..=100 {
+            let x = i as f32 / 100.0;
+            assert!((srgb_eotf(srgb_oetf(x)) - x).abs() < 1e-5);
+        }
+    }
+}
