@@ -1,6 +1,7 @@
 //! HDR and 8-bit file formats. (Minimal first version; hardened per-codec modules follow.)
 
-use crate::error::{Error, Result};
+use crate::error::Result;
+use crate::error::Error as LpError;
 use crate::image::{HdrImage, SdrImage};
 use std::path::Path;
 
@@ -12,7 +13,7 @@ pub fn read_hdr(path: &Path) -> Result<HdrImage> {
         |res, _| HdrImage::new(res.width(), res.height()),
         |img: &mut HdrImage, pos, (r, g, b, _a): (f32, f32, f32, f32)| img.set(pos.x(), pos.y(), [r, g, b]),
     )
-    .map_err(|e| Error::format(path, e.to_string()))?;
+    .map_err(|e| LpError::format(path, e.to_string()))?;
     Ok(img.layer_data.channel_data.pixels)
 }
 
@@ -24,13 +25,13 @@ pub fn write_hdr(path: &Path, img: &HdrImage) -> Result<()> {
         let p = img.get(x, y);
         (p[0], p[1], p[2])
     })
-    .map_err(|e| Error::format(path, e.to_string()))?;
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    .map_err(|e| LpError::format(path, e.to_string()))?;
+    std::fs::rename(&tmp, path).map_err(|e| LpError::io(path, e))
 }
 
 /// Reads an 8-bit RGB image (PNG or JPEG).
 pub fn read_sdr(path: &Path) -> Result<SdrImage> {
-    let img = image::open(path).map_err(|e| Error::format(path, e.to_string()))?.to_rgb8();
+    let img = image::open(path).map_err(|e| LpError::format(path, e.to_string()))?.to_rgb8();
     let (w, h) = img.dimensions();
     SdrImage::from_vec(w as usize, h as usize, img.into_raw())
 }
@@ -38,9 +39,9 @@ pub fn read_sdr(path: &Path) -> Result<SdrImage> {
 /// Writes an 8-bit RGB image atomically (PNG or JPEG by extension).
 pub fn write_sdr(path: &Path, img: &SdrImage) -> Result<()> {
     let buf = image::RgbImage::from_raw(img.width() as u32, img.height() as u32, img.data().to_vec())
-        .ok_or_else(|| Error::Invalid("SDR buffer size".into()))?;
-    let fmt = image::ImageFormat::from_path(path).map_err(|e| Error::format(path, e.to_string()))?;
+        .ok_or_else(|| LpError::Invalid("SDR buffer size".into()))?;
+    let fmt = image::ImageFormat::from_path(path).map_err(|e| LpError::format(path, e.to_string()))?;
     let mut bytes = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut bytes, fmt).map_err(|e| Error::format(path, e.to_string()))?;
+    buf.write_to(&mut bytes, fmt).map_err(|e| LpError::format(path, e.to_string()))?;
     crate::fsutil::write_atomic(path, bytes.get_ref())
 }
