@@ -1,1 +1,235 @@
-//! (in progress)
+//! The one bridge to the C++/OpenCV layer in `cpp/`. All `unsafe` FFI of the crate
+//! lives here; callers get safe functions and [`crate::Error::OpenCv`] for any C++
+//! exception.
+
+use crate::error::{Error, Result};
+
+#[cxx::bridge(namespace = "lumiprobe")]
+mod ffi {
+    /// Keypoints and descriptors of one image.
+    #[derive(Clone, Debug, Default)]
+    struct Features {
+        /// Keypoint positions, `x0, y0, x1, y1, …` (pixel centres at integers).
+        xy: Vec<f32>,
+        /// Float descriptors (SIFT), row-major `count x dim`.
+        desc_f32: Vec<f32>,
+        /// Binary descriptors (ORB, AKAZE), row-major `count x dim` bytes.
+        desc_u8: Vec<u8>,
+        /// Descriptor length.
+        dim: i32,
+        /// Number of keypoints.
+        count: i32,
+        /// True for binary descriptors (Hamming distance).
+        binary: bool,
+    }
+
+    /// A fitted homography and its RANSAC inlier mask.
+    #[derive(Clone, Debug, Default)]
+    struct Homography {
+        /// Row-major 3x3 matrix mapping source to destination points.
+        h: [f64; 9],
+        /// 1 for each inlier correspondence.
+        inliers: Vec<u8>,
+        /// False when no model could be fitted.
+        ok: bool,
+    }
+
+    unsafe extern "C++" {
+        include!("lumiprobe/cpp/cv_bridge.h");
+
+        type MatchIndex;
+
+        fn set_num_threads(n: i32);
+        fn detect_features(gray: &[u8], width: i32, height: i32, detector: i32, max_features: i32) -> Result<Features>;
+        fn build_index(train: &Features) -> Result<UniquePtr<MatchIndex>>;
+        fn match_ratio(index: &MatchIndex, query: &Features, ratio: f32) -> Result<Vec<i32>>;
+        fn find_homography(src: &[f32], dst: &[f32], threshold: f64, max_iters: i32, confidence: f64, method: i32) -> Result<Homography>;
+    }
+}
+
+pub use ffi::{Features, Homography};
+
+// SAFETY: MatchIndex is immutable after construction; its only mutable state (the
+// FLANN search) is guarded by a mutex on the C++ side.
+unsafe impl Send for ffi::MatchIndex {}
+unsafe impl Sync for ffi::MatchIndex {}
+
+fn cv_err(e: cxx::Exception) -> Error {
+    Error::OpenCv(e.what().to_string())
+}
+
+/// Feature detectors available in Debian's OpenCV (no SURF: xfeatures2d is absent).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Detector {
+    /// Lowe's SIFT, float descriptors matched with a FLANN k-d forest (default).
+    Sift,
+    /// AKAZE, binary descriptors matched by brute-force Hamming distance.
+    Akaze,
+    /// ORB, binary descriptors matched by brute-force Hamming distance.
+    Orb,
+}
+
+impl Detector {
+    fn id(self) -> i32 {
+        match self {
+            Detector::Sift => 0,
+            Detector::Akaze => 1,
+            Detector::Orb => 2,
+        }
+    }
+}
+
+/// Robust estimators for [`find_homography`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Estimator {
+    /// Classic RANSAC (deterministic in OpenCV: fixed RNG seed).
+    Ransac,
+    /// USAC with MAGSAC++ scoring.
+    Magsac,
+    /// Least median of squares.
+    Lmeds,
+}
+
+/// Limits OpenCV's own thread pool (lumiprobe parallelises with rayon instead).
+pub fn set_num_threads(n: i32) {
+    ffi::set_num_threads(n);
+}
+
+impl Features {
+    /// Keypoint `i` as `(x, y)`.
+    pub fn point(&self, i: usize) -> (f32, f32) {
+        (self.xy[2 * i], self.xy[2 * i + 1])
+    }
+    /// Number of keypoints.
+    pub fn len(&self) -> usize {
+        self.count.max(0) as usize
+    }
+    /// True when nothing was detected.
+    pub fn is_empty(&self) -> bool {
+        self.count <= 0
+    }
+}
+
+/// Detects keypoints and computes descriptors on an 8-bit gray image.
+pub fn detect(gray: &[u8], width: usize, height: usize, detector: Detector, max_features: i32) -> Result<Features> {
+    if width == 0 || height == 0 || gray.len() != width * height {
+        return Err(Error::Invalid(format!("gray image of {} bytes is not {width}x{height}", gray.len())));
+    }
+    ffi::detect_features(gray, width as i32, height as i32, detector.id(), max_features).map_err(cv_err)
+}
+
+/// A descriptor index over one image's features, for repeated queries.
+pub struct MatchIndex(cxx::UniquePtr<ffi::MatchIndex>);
+
+impl MatchIndex {
+    /// Indexes `train`'s descriptors (FLANN k-d forest for float, brute force for binary).
+    pub fn new(train: &Features) -> Result<Self> {
+        let p = ffi::build_index(train).map_err(cv_err)?;
+        if p.is_null() {
+            return Err(Error::OpenCv("index construction returned null".into()));
+        }
+        Ok(MatchIndex(p))
+    }
+
+    /// Matches `query` against the index with Lowe's ratio test: pairs
+    /// `(query index, train index)` whose best distance is below `ratio` times the second best.
+    pub fn match_ratio(&self, query: &Features, ratio: f32) -> Result<Vec<(usize, usize)>> {
+        let idx = self.0.as_ref().ok_or_else(|| Error::OpenCv("null index".into()))?;
+        let flat = ffi::match_ratio(idx, query, ratio).map_err(cv_err)?;
+        Ok(flat.chunks_exact(2).map(|p| (p[0] as usize, p[1] as usize)).collect())
+    }
+}
+
+/// Fits a homography `dst ~ H src` robustly. Returns `None` when fewer than four
+/// correspondences are given or no model is found.
+pub fn find_homography(
+    src: &[(f32, f32)],
+    dst: &[(f32, f32)],
+    threshold: f64,
+    max_iters: i32,
+    confidence: f64,
+    estimator: Estimator,
+) -> Result<Option<Homography>> {
+    if src.len() != dst.len() {
+        return Err(Error::Invalid(format!("{} source points but {} destination points", src.len(), dst.len())));
+    }
+    let a: Vec<f32> = src.iter().flat_map(|p| [p.0, p.1]).collect();
+    let b: Vec<f32> = dst.iter().flat_map(|p| [p.0, p.1]).collect();
+    let m = match estimator {
+        Estimator::Ransac => 0,
+        Estimator::Magsac => 1,
+        Estimator::Lmeds => 2,
+    };
+    let h = ffi::find_homography(&a, &b, threshold, max_iters, confidence, m).map_err(cv_err)?;
+    Ok(if h.ok { Some(h) } else { None })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texture(w: usize, h: usize, seed: u32) -> Vec<u8> {
+        // Blocky value noise plus a few rectangles: enough corners for SIFT.
+        let mut s = seed.wrapping_mul(2654435761).max(1);
+        let mut cells = vec![0u8; 64];
+        for c in cells.iter_mut() {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            *c = (s & 0xff) as u8;
+        }
+        let mut img = vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let c = cells[((y * 8 / h) * 8 + (x * 8 / w)) % 64] as u32;
+                let fine = cells[((y / 5) * 7 + (x / 7)) % 64] as u32;
+                img[y * w + x] = ((c * 3 + fine) / 4) as u8;
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn textureless_image_gives_no_features_and_no_matches() {
+        let flat = vec![128u8; 64 * 64];
+        let f = detect(&flat, 64, 64, Detector::Sift, 0).unwrap();
+        assert!(f.is_empty());
+        let idx = MatchIndex::new(&f).unwrap();
+        assert!(idx.match_ratio(&f, 0.7).unwrap().is_empty());
+    }
+
+    #[test]
+    fn self_matching_finds_identity_homography() {
+        let (w, h) = (128, 128);
+        let img = texture(w, h, 7);
+        for det in [Detector::Sift, Detector::Orb, Detector::Akaze] {
+            let f = detect(&img, w, h, det, 0).unwrap();
+            assert!(f.len() > 10, "{det:?} found {}", f.len());
+            let idx = MatchIndex::new(&f).unwrap();
+            let m = idx.match_ratio(&f, 0.99).unwrap();
+            let src: Vec<_> = m.iter().map(|&(q, _)| f.point(q)).collect();
+            let dst: Vec<_> = m.iter().map(|&(_, t)| f.point(t)).collect();
+            let hm = find_homography(&src, &dst, 2.0, 2000, 0.995, Estimator::Ransac).unwrap().unwrap();
+            let hn: Vec<f64> = hm.h.iter().map(|v| v / hm.h[8]).collect();
+            let id = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+            for k in 0..9 {
+                assert!((hn[k] - id[k]).abs() < 1e-3, "{det:?}: {hn:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_arguments_become_errors() {
+        assert!(detect(&[0u8; 10], 4, 4, Detector::Sift, 0).is_err());
+        assert!(find_homography(&[(0.0, 0.0)], &[], 1.0, 10, 0.9, Estimator::Ransac).is_err());
+        assert!(find_homography(&[(0.0, 0.0); 3], &[(0.0, 0.0); 3], 1.0, 10, 0.9, Estimator::Ransac).unwrap().is_none());
+        // Mixed descriptor kinds: a C++ exception surfaces as an Error, not an abort.
+        let img = texture(96, 96, 3);
+        let a = detect(&img, 96, 96, Detector::Sift, 0).unwrap();
+        let b = detect(&img, 96, 96, Detector::Orb, 0).unwrap();
+        let idx = MatchIndex::new(&a).unwrap();
+        assert!(matches!(idx.match_ratio(&b, 0.7), Err(Error::OpenCv(_))));
+    }
+}
