@@ -6,6 +6,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/features2d.hpp>
 #include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <stdexcept>
 #include <string>
@@ -28,12 +29,15 @@ namespace {
 
 enum Detector { SIFT = 0, AKAZE = 1, ORB = 2 };
 
-cv::Ptr<cv::Feature2D> make_detector(int32_t detector, int32_t max_features) {
+cv::Ptr<cv::Feature2D> make_detector(int32_t detector, int32_t max_features,
+                                     double threshold) {
   switch (detector) {
   case SIFT:
-    return cv::SIFT::create(max_features > 0 ? max_features : 0);
+    return cv::SIFT::create(max_features > 0 ? max_features : 0, 3,
+                            threshold > 0 ? threshold : 0.04);
   case AKAZE:
-    return cv::AKAZE::create();
+    return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3,
+                             threshold > 0 ? threshold : 0.001);
   case ORB:
     return cv::ORB::create(max_features > 0 ? max_features : 500);
   default:
@@ -61,12 +65,18 @@ cv::Mat descriptors_of(const Features &f) {
 
 Features detect_features(rust::Slice<const uint8_t> gray, int32_t width,
                          int32_t height, int32_t detector,
-                         int32_t max_features) {
+                         int32_t max_features, double threshold,
+                         float blur_sigma) {
   if (width <= 0 || height <= 0 ||
       gray.size() != size_t(width) * size_t(height))
     throw std::invalid_argument("gray image buffer does not match its size");
   cv::Mat img(height, width, CV_8U, const_cast<uint8_t *>(gray.data()));
-  auto det = make_detector(detector, max_features);
+  if (blur_sigma > 0.0f) {
+    cv::Mat smooth;
+    cv::GaussianBlur(img, smooth, cv::Size(0, 0), blur_sigma);
+    img = smooth;
+  }
+  auto det = make_detector(detector, max_features, threshold);
   std::vector<cv::KeyPoint> kps;
   cv::Mat desc;
   det->detectAndCompute(img, cv::noArray(), kps, desc);
@@ -105,6 +115,11 @@ std::unique_ptr<MatchIndex> build_index(const Features &train) {
   impl->count = train.count;
   impl->train = descriptors_of(train).clone();
   if (!impl->binary && impl->count >= 2) {
+    // FLANN's randomised k-d trees draw from the C library's global generator:
+    // seed it under a lock so every index (and so every match) is reproducible.
+    static std::mutex seed_lock;
+    std::lock_guard<std::mutex> guard(seed_lock);
+    cvflann::seed_random(20240611u);
     impl->kd = std::make_unique<cv::flann::Index>(
         impl->train, cv::flann::KDTreeIndexParams(4), cvflann::FLANN_DIST_L2);
   }

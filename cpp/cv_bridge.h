@@ -32,7 +32,8 @@ void set_num_threads(int32_t n);
 
 Features detect_features(rust::Slice<const uint8_t> gray, int32_t width,
                          int32_t height, int32_t detector,
-                         int32_t max_features);
+                         int32_t max_features, double threshold,
+                         float blur_sigma);
 
 std::unique_ptr<MatchIndex> build_index(const Features &train);
 

@@ -40,10 +40,25 @@ mod ffi {
         type MatchIndex;
 
         fn set_num_threads(n: i32);
-        fn detect_features(gray: &[u8], width: i32, height: i32, detector: i32, max_features: i32) -> Result<Features>;
+        fn detect_features(
+            gray: &[u8],
+            width: i32,
+            height: i32,
+            detector: i32,
+            max_features: i32,
+            threshold: f64,
+            blur_sigma: f32,
+        ) -> Result<Features>;
         fn build_index(train: &Features) -> Result<UniquePtr<MatchIndex>>;
         fn match_ratio(index: &MatchIndex, query: &Features, ratio: f32) -> Result<Vec<i32>>;
-        fn find_homography(src: &[f32], dst: &[f32], threshold: f64, max_iters: i32, confidence: f64, method: i32) -> Result<Homography>;
+        fn find_homography(
+            src: &[f32],
+            dst: &[f32],
+            threshold: f64,
+            max_iters: i32,
+            confidence: f64,
+            method: i32,
+        ) -> Result<Homography>;
     }
 }
 
@@ -59,7 +74,9 @@ fn cv_err(e: cxx::Exception) -> Error {
 }
 
 /// Feature detectors available in Debian's OpenCV (no SURF: xfeatures2d is absent).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Detector {
     /// Lowe's SIFT, float descriptors matched with a FLANN k-d forest (default).
@@ -81,7 +98,9 @@ impl Detector {
 }
 
 /// Robust estimators for [`find_homography`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Estimator {
     /// Classic RANSAC (deterministic in OpenCV: fixed RNG seed).
@@ -112,12 +131,37 @@ impl Features {
     }
 }
 
+/// How features are detected.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DetectParams {
+    /// The detector.
+    pub detector: Detector,
+    /// Keep at most this many features (0 = no limit).
+    pub max_features: i32,
+    /// Detector response threshold (SIFT contrast, AKAZE threshold; 0 = OpenCV's default).
+    pub threshold: f64,
+    /// Gaussian pre-blur in pixels against sensor noise (0 = none).
+    pub blur_sigma: f32,
+}
+
 /// Detects keypoints and computes descriptors on an 8-bit gray image.
-pub fn detect(gray: &[u8], width: usize, height: usize, detector: Detector, max_features: i32) -> Result<Features> {
+pub fn detect(gray: &[u8], width: usize, height: usize, p: &DetectParams) -> Result<Features> {
     if width == 0 || height == 0 || gray.len() != width * height {
-        return Err(Error::Invalid(format!("gray image of {} bytes is not {width}x{height}", gray.len())));
+        return Err(Error::Invalid(format!(
+            "gray image of {} bytes is not {width}x{height}",
+            gray.len()
+        )));
     }
-    ffi::detect_features(gray, width as i32, height as i32, detector.id(), max_features).map_err(cv_err)
+    ffi::detect_features(
+        gray,
+        width as i32,
+        height as i32,
+        p.detector.id(),
+        p.max_features,
+        p.threshold,
+        p.blur_sigma,
+    )
+    .map_err(cv_err)
 }
 
 /// A descriptor index over one image's features, for repeated queries.
@@ -136,9 +180,15 @@ impl MatchIndex {
     /// Matches `query` against the index with Lowe's ratio test: pairs
     /// `(query index, train index)` whose best distance is below `ratio` times the second best.
     pub fn match_ratio(&self, query: &Features, ratio: f32) -> Result<Vec<(usize, usize)>> {
-        let idx = self.0.as_ref().ok_or_else(|| Error::OpenCv("null index".into()))?;
+        let idx = self
+            .0
+            .as_ref()
+            .ok_or_else(|| Error::OpenCv("null index".into()))?;
         let flat = ffi::match_ratio(idx, query, ratio).map_err(cv_err)?;
-        Ok(flat.chunks_exact(2).map(|p| (p[0] as usize, p[1] as usize)).collect())
+        Ok(flat
+            .chunks_exact(2)
+            .map(|p| (p[0] as usize, p[1] as usize))
+            .collect())
     }
 }
 
@@ -153,7 +203,11 @@ pub fn find_homography(
     estimator: Estimator,
 ) -> Result<Option<Homography>> {
     if src.len() != dst.len() {
-        return Err(Error::Invalid(format!("{} source points but {} destination points", src.len(), dst.len())));
+        return Err(Error::Invalid(format!(
+            "{} source points but {} destination points",
+            src.len(),
+            dst.len()
+        )));
     }
     let a: Vec<f32> = src.iter().flat_map(|p| [p.0, p.1]).collect();
     let b: Vec<f32> = dst.iter().flat_map(|p| [p.0, p.1]).collect();
@@ -169,6 +223,15 @@ pub fn find_homography(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn plain(detector: Detector) -> DetectParams {
+        DetectParams {
+            detector,
+            max_features: 0,
+            threshold: 0.0,
+            blur_sigma: 0.0,
+        }
+    }
 
     fn texture(w: usize, h: usize, seed: u32) -> Vec<u8> {
         // Blocky value noise plus a few rectangles: enough corners for SIFT.
@@ -194,7 +257,7 @@ mod tests {
     #[test]
     fn textureless_image_gives_no_features_and_no_matches() {
         let flat = vec![128u8; 64 * 64];
-        let f = detect(&flat, 64, 64, Detector::Sift, 0).unwrap();
+        let f = detect(&flat, 64, 64, &plain(Detector::Sift)).unwrap();
         assert!(f.is_empty());
         let idx = MatchIndex::new(&f).unwrap();
         assert!(idx.match_ratio(&f, 0.7).unwrap().is_empty());
@@ -205,13 +268,15 @@ mod tests {
         let (w, h) = (128, 128);
         let img = texture(w, h, 7);
         for det in [Detector::Sift, Detector::Orb, Detector::Akaze] {
-            let f = detect(&img, w, h, det, 0).unwrap();
+            let f = detect(&img, w, h, &plain(det)).unwrap();
             assert!(f.len() > 10, "{det:?} found {}", f.len());
             let idx = MatchIndex::new(&f).unwrap();
             let m = idx.match_ratio(&f, 0.99).unwrap();
             let src: Vec<_> = m.iter().map(|&(q, _)| f.point(q)).collect();
             let dst: Vec<_> = m.iter().map(|&(_, t)| f.point(t)).collect();
-            let hm = find_homography(&src, &dst, 2.0, 2000, 0.995, Estimator::Ransac).unwrap().unwrap();
+            let hm = find_homography(&src, &dst, 2.0, 2000, 0.995, Estimator::Ransac)
+                .unwrap()
+                .unwrap();
             let hn: Vec<f64> = hm.h.iter().map(|v| v / hm.h[8]).collect();
             let id = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
             for k in 0..9 {
@@ -222,13 +287,22 @@ mod tests {
 
     #[test]
     fn bad_arguments_become_errors() {
-        assert!(detect(&[0u8; 10], 4, 4, Detector::Sift, 0).is_err());
+        assert!(detect(&[0u8; 10], 4, 4, &plain(Detector::Sift)).is_err());
         assert!(find_homography(&[(0.0, 0.0)], &[], 1.0, 10, 0.9, Estimator::Ransac).is_err());
-        assert!(find_homography(&[(0.0, 0.0); 3], &[(0.0, 0.0); 3], 1.0, 10, 0.9, Estimator::Ransac).unwrap().is_none());
+        assert!(find_homography(
+            &[(0.0, 0.0); 3],
+            &[(0.0, 0.0); 3],
+            1.0,
+            10,
+            0.9,
+            Estimator::Ransac
+        )
+        .unwrap()
+        .is_none());
         // Mixed descriptor kinds: a C++ exception surfaces as an Error, not an abort.
         let img = texture(96, 96, 3);
-        let a = detect(&img, 96, 96, Detector::Sift, 0).unwrap();
-        let b = detect(&img, 96, 96, Detector::Orb, 0).unwrap();
+        let a = detect(&img, 96, 96, &plain(Detector::Sift)).unwrap();
+        let b = detect(&img, 96, 96, &plain(Detector::Orb)).unwrap();
         let idx = MatchIndex::new(&a).unwrap();
         assert!(matches!(idx.match_ratio(&b, 0.7), Err(Error::OpenCv(_))));
     }

@@ -1,1 +1,304 @@
-fn main() {}
+//! `lumiprobe` command line: one subcommand per workflow step.
+
+use clap::{Args, Parser, Subcommand};
+use lumiprobe::cv::{Detector, Estimator};
+use lumiprobe::image::io;
+use lumiprobe::pipeline::{self, Method, RunParams};
+use lumiprobe::scene::Scene;
+use lumiprobe::warp::{CandidateMode, ProbeTonemap};
+use lumiprobe::{Error, HdrImage, Result};
+use std::path::{Path, PathBuf};
+
+#[derive(Parser)]
+#[command(
+    name = "lumiprobe",
+    version,
+    about = "HDR light probes at every frame of a 360° SDR walk"
+)]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// No progress output.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Args, Clone)]
+struct WarpOpts {
+    /// Yaw rotations of the probe (step 90°/N).
+    #[arg(long, default_value_t = 4)]
+    yaw_steps: usize,
+    /// Feature detector (Debian's OpenCV has no SURF).
+    #[arg(long, value_enum, default_value_t = Detector::Sift)]
+    detector: Detector,
+    /// Lowe ratio-test threshold.
+    #[arg(long, default_value_t = 0.7)]
+    ratio: f32,
+    /// Robust homography estimator.
+    #[arg(long, value_enum, default_value_t = Estimator::Ransac)]
+    estimator: Estimator,
+    /// RANSAC inlier threshold in face pixels.
+    #[arg(long, default_value_t = 3.0)]
+    ransac_threshold: f64,
+    /// Fewest inliers to trust a face's homography.
+    #[arg(long, default_value_t = 12)]
+    min_inliers: usize,
+    /// Which probe faces a frame face is matched with.
+    #[arg(long, value_enum, default_value_t = CandidateMode::Pose)]
+    candidates: CandidateMode,
+    /// How probes are tone-mapped for matching.
+    #[arg(long, value_enum, default_value_t = ProbeTonemap::Camera)]
+    probe_tonemap: ProbeTonemap,
+    /// Cube face size (default: a quarter of the panorama width).
+    #[arg(long)]
+    face_size: Option<usize>,
+}
+
+impl WarpOpts {
+    fn params(&self) -> lumiprobe::warp::WarpParams {
+        lumiprobe::warp::WarpParams {
+            yaw_steps: self.yaw_steps.max(1),
+            detector: self.detector,
+            ratio: self.ratio,
+            estimator: self.estimator,
+            ransac_threshold: self.ransac_threshold,
+            min_inliers: self.min_inliers,
+            candidates: self.candidates,
+            probe_tonemap: self.probe_tonemap,
+            face_size: self.face_size,
+            ..Default::default()
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Predict an HDR probe for every frame of a scene.
+    Run {
+        /// Scene folder (with poses.json) or the poses.json itself.
+        scene: PathBuf,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Method.
+        #[arg(long, value_enum, default_value_t = Method::Warp)]
+        method: Method,
+        /// Working size WxH (default: the frames' size).
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(usize, usize)>,
+        #[command(flatten)]
+        warp: WarpOpts,
+    },
+    /// Convert between HDR formats (.exr, .hdr, .pfm) by extension.
+    Convert {
+        /// Input file.
+        input: PathBuf,
+        /// Output file.
+        output: PathBuf,
+    },
+    /// Tone-map an HDR image to an 8-bit PNG/JPEG.
+    Tonemap {
+        /// Input HDR file.
+        input: PathBuf,
+        /// Output 8-bit file.
+        output: PathBuf,
+        /// Operator.
+        #[arg(long, value_enum, default_value_t = Operator::Reinhard05)]
+        operator: Operator,
+        /// Exposure in EV for `exposure`.
+        #[arg(long, default_value_t = 0.0)]
+        ev: f32,
+    },
+    /// Cut a panorama into six cube faces (`<stem>_<face>.<ext>`).
+    Cube {
+        /// Input HDR panorama.
+        input: PathBuf,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Face size in pixels (default: width / 4).
+        #[arg(long)]
+        size: Option<usize>,
+    },
+    /// Rotate a panorama by yaw/pitch/roll in degrees.
+    Rotate {
+        /// Input HDR panorama.
+        input: PathBuf,
+        /// Output HDR panorama.
+        output: PathBuf,
+        /// Yaw (right positive).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        yaw: f32,
+        /// Pitch (up positive).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        pitch: f32,
+        /// Roll (clockwise positive).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        roll: f32,
+    },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Operator {
+    Reinhard05,
+    Reinhard,
+    Exposure,
+}
+
+fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("size {s:?} is not WxH"))?;
+    let w: usize = w
+        .parse()
+        .map_err(|_| format!("width {w:?} is not a number"))?;
+    let h: usize = h
+        .parse()
+        .map_err(|_| format!("height {h:?} is not a number"))?;
+    if w < 8 || h < 4 || w > 65536 || h > 32768 {
+        return Err(format!("size {w}x{h} is outside 8x4 .. 65536x32768"));
+    }
+    Ok((w, h))
+}
+
+fn progress_printer(quiet: bool, label: &'static str) -> impl Fn(usize, usize) + Sync {
+    move |done, total| {
+        if !quiet {
+            use std::io::Write;
+            let width = 30;
+            let filled = if total > 0 {
+                done * width / total
+            } else {
+                width
+            };
+            eprint!(
+                "\r{label} [{}{}] {done}/{total}",
+                "#".repeat(filled),
+                ".".repeat(width - filled)
+            );
+            if done == total {
+                eprintln!();
+            }
+            let _ = std::io::stderr().flush();
+        }
+    }
+}
+
+fn write_display(path: &Path, w: usize, h: usize, v: &[f32]) -> Result<()> {
+    let img = lumiprobe::SdrImage::from_vec(w, h, lumiprobe::tonemap::quantize(v))?;
+    io::write_sdr(path, &img)
+}
+
+fn main() {
+    let cli = Cli::parse();
+    if let Some(n) = cli.threads {
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(n.max(1))
+            .build_global();
+    }
+    if let Err(e) = real_main(cli) {
+        eprintln!("lumiprobe: {e}");
+        std::process::exit(1);
+    }
+}
+
+fn real_main(cli: Cli) -> Result<()> {
+    match cli.cmd {
+        Cmd::Run {
+            scene,
+            out,
+            method,
+            size,
+            warp,
+        } => {
+            let scene = Scene::load(&scene)?;
+            for w in &scene.warnings {
+                eprintln!("warning: {w}");
+            }
+            let params = RunParams {
+                method,
+                size,
+                warp: warp.params(),
+            };
+            let report = pipeline::run(
+                &scene,
+                &out,
+                &params,
+                &progress_printer(cli.quiet, "frames"),
+            )?;
+            if !cli.quiet {
+                let n = report.frames.len().max(1) as f64;
+                let mean_ms: f64 = report.frames.iter().map(|f| f.total_ms).sum::<f64>() / n;
+                let homog: usize = report
+                    .frames
+                    .iter()
+                    .filter_map(|f| f.warp.as_ref())
+                    .map(|w| w.faces.iter().filter(|x| x.source == "homography").count())
+                    .sum();
+                println!(
+                    "{}: {} frames ({} resumed), {:.1} ms per frame, {} of {} matched faces used a homography; report: {}",
+                    report.scene,
+                    report.frames.len(),
+                    report.resumed.len(),
+                    mean_ms,
+                    homog,
+                    report.frames.len() * 5,
+                    out.join("report.json").display()
+                );
+            }
+        }
+        Cmd::Convert { input, output } => {
+            let img = io::read_hdr(&input)?;
+            io::write_hdr(&output, &img)?;
+        }
+        Cmd::Tonemap {
+            input,
+            output,
+            operator,
+            ev,
+        } => {
+            let img = io::read_hdr(&input)?;
+            let v = match operator {
+                Operator::Reinhard05 => lumiprobe::tonemap::Reinhard05::default().apply(&img),
+                Operator::Reinhard => lumiprobe::tonemap::reinhard_global(&img, 0.18, None, None),
+                Operator::Exposure => lumiprobe::tonemap::exposure_srgb(&img, ev),
+            };
+            write_display(&output, img.width(), img.height(), &v)?;
+        }
+        Cmd::Cube { input, out, size } => {
+            let img = io::read_hdr(&input)?;
+            let n = size.unwrap_or(img.width() / 4).max(1);
+            let stem = input
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "face".into());
+            let ext = input
+                .extension()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "exr".into());
+            for (f, face) in lumiprobe::sphere::FACES
+                .iter()
+                .zip(lumiprobe::sphere::cube::equirect_to_cube(&img, n))
+            {
+                io::write_hdr(&out.join(format!("{stem}_{}.{ext}", f.name())), &face)?;
+            }
+        }
+        Cmd::Rotate {
+            input,
+            output,
+            yaw,
+            pitch,
+            roll,
+        } => {
+            let img = io::read_hdr(&input)?;
+            let r = lumiprobe::sphere::ypr_to_mat(yaw, pitch, roll);
+            let out: HdrImage = lumiprobe::sphere::rotate(&img, r, img.width(), img.height());
+            io::write_hdr(&output, &out)?;
+        }
+    }
+    let _: Option<Error> = None;
+    Ok(())
+}

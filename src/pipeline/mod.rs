@@ -1,1 +1,272 @@
-//! (in progress)
+//! Running a method over every frame of a scene: choosing each frame's probe,
+//! loading what it needs once, writing one EXR per frame and a report, and resuming
+//! an interrupted run without redoing finished frames.
+
+use crate::error::{Error, Result};
+use crate::image::{io, HdrImage, SdrImage};
+use crate::scene::{Frame, Scene};
+use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use std::time::Instant;
+
+/// Methods that predict a probe per frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Per-face feature homographies (thesis Part II).
+    Warp,
+}
+
+/// Settings of a run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunParams {
+    /// The method.
+    pub method: Method,
+    /// Working and output size; `None` keeps the frames' own size.
+    pub size: Option<(usize, usize)>,
+    /// Warp-method settings.
+    pub warp: WarpParams,
+}
+
+impl Default for RunParams {
+    fn default() -> Self {
+        RunParams {
+            method: Method::Warp,
+            size: None,
+            warp: WarpParams::default(),
+        }
+    }
+}
+
+/// What was done for one frame.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FrameRecord {
+    /// Frame id (the output is `<id>.exr`).
+    pub id: String,
+    /// The probe used.
+    pub probe: String,
+    /// Distance from the frame to that probe in metres.
+    pub probe_distance_m: f32,
+    /// Warp-method details.
+    pub warp: Option<WarpReport>,
+    /// Time for the whole frame, loading excluded, in milliseconds.
+    pub total_ms: f64,
+    /// Input pixels that were NaN, infinite or negative and were repaired.
+    pub repaired_pixels: usize,
+    /// Fingerprint of inputs and settings, used to resume.
+    pub fingerprint: String,
+}
+
+/// The report of a run (`report.json`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunReport {
+    /// Scene name.
+    pub scene: String,
+    /// Settings used.
+    pub params: RunParams,
+    /// One record per frame, in walk order.
+    pub frames: Vec<FrameRecord>,
+    /// Frames skipped because their outputs were already up to date.
+    pub resumed: Vec<String>,
+    /// Loader and method warnings.
+    pub warnings: Vec<String>,
+}
+
+/// Reads an SDR frame and resamples it to the working size.
+pub fn load_frame(frame: &Frame, size: Option<(usize, usize)>) -> Result<SdrImage> {
+    let sdr = io::read_sdr(&frame.sdr)?;
+    if sdr.width() < 8 || sdr.height() < 4 {
+        return Err(Error::format(
+            &frame.sdr,
+            format!("panorama of {}x{} is too small", sdr.width(), sdr.height()),
+        ));
+    }
+    Ok(match size {
+        Some((w, h)) if (w, h) != (sdr.width(), sdr.height()) => resize_sdr(&sdr, w, h),
+        _ => sdr,
+    })
+}
+
+/// Resamples an 8-bit panorama (bilinear on codes, seam- and pole-aware).
+pub fn resize_sdr(sdr: &SdrImage, w: usize, h: usize) -> SdrImage {
+    let disp = warp::sdr_display(sdr);
+    let r = crate::sphere::resize(&disp, w, h);
+    SdrImage::from_vec(w, h, crate::tonemap::quantize(r.data())).expect("size matches")
+}
+
+/// Radiance of an SDR frame: `response⁻¹(code / 255) / gain` (clipped pixels stay at
+/// the white point's radiance).
+pub fn linearize(sdr: &SdrImage, scene: &Scene) -> HdrImage {
+    let lut = scene.response.decode_lut();
+    let g = 1.0 / scene.path_gain;
+    let data = sdr.data().iter().map(|&c| lut[c as usize] * g).collect();
+    HdrImage::from_vec(sdr.width(), sdr.height(), data).expect("size matches")
+}
+
+/// Reads a probe's HDR panorama, repairs invalid samples and resamples it.
+pub fn load_probe(
+    scene: &Scene,
+    i: usize,
+    size: Option<(usize, usize)>,
+) -> Result<(HdrImage, usize)> {
+    let p = &scene.probes[i];
+    let path = p.hdr.as_ref().ok_or_else(|| {
+        Error::Invalid(format!(
+            "probe {} has no HDR file (merge its brackets first)",
+            p.id
+        ))
+    })?;
+    let mut img = io::read_hdr(path)?;
+    let repaired = img.repair_invalid();
+    if let Some((w, h)) = size {
+        img = crate::sphere::resize(&img, w, h);
+    }
+    Ok((img, repaired))
+}
+
+fn file_stamp(p: &Path) -> String {
+    match std::fs::metadata(p) {
+        Ok(m) => format!("{}:{}:{:?}", p.display(), m.len(), m.modified().ok()),
+        Err(_) => format!("{}:missing", p.display()),
+    }
+}
+
+fn fingerprint(parts: &[String]) -> String {
+    // FNV-1a 64: stable across runs and platforms.
+    let mut h: u64 = 0xcbf29ce484222325;
+    for s in parts {
+        for b in s.bytes().chain(std::iter::once(0u8)) {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x100000001b3);
+        }
+    }
+    format!("{h:016x}")
+}
+
+/// Runs the configured method over every frame of `scene`, writing
+/// `out_dir/<frame id>.exr`, a sidecar `<frame id>.json` per frame and
+/// `out_dir/report.json`. Frames whose outputs match the current inputs and
+/// settings are kept as they are. `progress(done, total)` is called per frame.
+pub fn run(
+    scene: &Scene,
+    out_dir: &Path,
+    params: &RunParams,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<RunReport> {
+    use rayon::prelude::*;
+    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    crate::cv::set_num_threads(1);
+    let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
+    let probes: Vec<OnceLock<std::result::Result<(Arc<PreparedProbe>, usize), String>>> =
+        scene.probes.iter().map(|_| OnceLock::new()).collect();
+    let get_probe = |i: usize| -> Result<(Arc<PreparedProbe>, usize)> {
+        probes[i]
+            .get_or_init(|| {
+                load_probe(scene, i, params.size)
+                    .map(|(img, rep)| {
+                        let pp = PreparedProbe::new(
+                            Arc::new(img),
+                            scene.probes[i].pose,
+                            params.warp.probe_tonemap,
+                            &scene.response,
+                            scene.path_gain,
+                        );
+                        (Arc::new(pp), rep)
+                    })
+                    .map_err(|e| e.to_string())
+            })
+            .clone()
+            .map_err(Error::Invalid)
+    };
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let total = scene.frames.len();
+    let results: Vec<Result<(FrameRecord, bool)>> = scene
+        .frames
+        .par_iter()
+        .map(|frame| {
+            let pi = scene.nearest_probe(frame.pose.position);
+            let probe_meta = &scene.probes[pi];
+            let fp = fingerprint(&[
+                settings.clone(),
+                file_stamp(&frame.sdr),
+                probe_meta
+                    .hdr
+                    .as_deref()
+                    .map(file_stamp)
+                    .unwrap_or_default(),
+                format!("{:?}{:?}", frame.pose, probe_meta.pose),
+                env!("CARGO_PKG_VERSION").to_string(),
+            ]);
+            let out = out_dir.join(format!("{}.exr", frame.id));
+            let side = out_dir.join(format!("{}.json", frame.id));
+            if out.exists() {
+                if let Ok(text) = std::fs::read_to_string(&side) {
+                    if let Ok(rec) = serde_json::from_str::<FrameRecord>(&text) {
+                        if rec.fingerprint == fp {
+                            progress(
+                                done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
+                                total,
+                            );
+                            return Ok((rec, true));
+                        }
+                    }
+                }
+            }
+            let sdr = load_frame(frame, params.size)?;
+            let (probe, repaired) = get_probe(pi)?;
+            let t = Instant::now();
+            let lin = linearize(&sdr, scene);
+            let (w, h) = (sdr.width(), sdr.height());
+            let (img, report) = match params.method {
+                Method::Warp => {
+                    warp::warp_frame(&sdr, &lin, &frame.pose, &probe, &params.warp, w, h)?
+                }
+            };
+            let total_ms = t.elapsed().as_secs_f64() * 1e3;
+            io::write_hdr(&out, &img)?;
+            let rec = FrameRecord {
+                id: frame.id.clone(),
+                probe: probe_meta.id.clone(),
+                probe_distance_m: probe_meta.pose.position.distance(frame.pose.position),
+                warp: Some(report),
+                total_ms,
+                repaired_pixels: repaired,
+                fingerprint: fp,
+            };
+            let json =
+                serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
+            crate::fsutil::write_atomic(&side, &json)?;
+            progress(
+                done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
+                total,
+            );
+            Ok((rec, false))
+        })
+        .collect();
+    let mut frames = Vec::new();
+    let mut resumed = Vec::new();
+    for r in results {
+        let (rec, was_resumed) = r?;
+        if was_resumed {
+            resumed.push(rec.id.clone());
+        }
+        frames.push(rec);
+    }
+    let report = RunReport {
+        scene: scene.name.clone(),
+        params: params.clone(),
+        frames,
+        resumed,
+        warnings: scene.warnings.clone(),
+    };
+    let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
+    crate::fsutil::write_atomic(&out_dir.join("report.json"), &json)?;
+    Ok(report)
+}
+
+/// Output path of a frame's prediction.
+pub fn prediction_path(out_dir: &Path, frame: &Frame) -> PathBuf {
+    out_dir.join(format!("{}.exr", frame.id))
+}

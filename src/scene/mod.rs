@@ -1,1 +1,356 @@
-//! (in progress)
+//! A captured scene: sparse HDR probes, the SDR frames of the walk, their poses and
+//! the camera's radiometry. Reads the dataset layout (`poses.json` beside `probes/`
+//! and `path/`).
+
+use crate::error::{Error, Result};
+use crate::sphere::orthonormalize;
+use crate::tonemap::Response;
+use glam::{Mat3, Vec3};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// Where a panorama was taken and how it was turned.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    /// Camera centre in world coordinates (metres, z up).
+    pub position: Vec3,
+    /// Rotation taking camera-axis directions to world directions.
+    pub world_from_camera: Mat3,
+}
+
+impl Pose {
+    /// Rotation that brings a panorama taken with pose `other` into this pose's
+    /// camera axes: pass it to [`crate::sphere::rotate`] with `other`'s image.
+    pub fn from_other(&self, other: &Pose) -> Mat3 {
+        other.world_from_camera.transpose() * self.world_from_camera
+    }
+}
+
+/// One exposure of a bracket set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bracket {
+    /// Image file.
+    pub file: PathBuf,
+    /// Exposure value relative to the base exposure.
+    pub ev: f32,
+    /// Exposure time in seconds, when known.
+    pub exposure_time_s: Option<f32>,
+}
+
+/// A sparse HDR probe.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Probe {
+    /// Identifier, e.g. `probe_00`.
+    pub id: String,
+    /// Where it was taken.
+    pub pose: Pose,
+    /// Merged HDR panorama, if given.
+    pub hdr: Option<PathBuf>,
+    /// The exposure brackets it can be merged from.
+    pub brackets: Vec<Bracket>,
+}
+
+/// One SDR frame of the walk.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Identifier, e.g. `frame_000`; also the output file's stem.
+    pub id: String,
+    /// Where it was taken.
+    pub pose: Pose,
+    /// The 8-bit panorama.
+    pub sdr: PathBuf,
+    /// True HDR at this pose, for evaluation only (never read by a method).
+    pub ground_truth: Option<PathBuf>,
+}
+
+/// A whole capture.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Folder holding the scene (paths below are absolute).
+    pub root: PathBuf,
+    /// Scene name.
+    pub name: String,
+    /// The HDR probes.
+    pub probes: Vec<Probe>,
+    /// The SDR frames in walk order.
+    pub frames: Vec<Frame>,
+    /// How SDR codes map to exposure.
+    pub response: Response,
+    /// Exposure gain of the SDR frames: radiance = response⁻¹(code / 255) / gain.
+    pub path_gain: f32,
+    /// Things the loader repaired or assumed, for the report.
+    pub warnings: Vec<String>,
+}
+
+#[derive(Deserialize)]
+struct RawScene {
+    #[serde(default)]
+    scene: Option<String>,
+    probes: Vec<RawEntry>,
+    frames: Vec<RawEntry>,
+    #[serde(default)]
+    camera: Option<RawCamera>,
+}
+
+#[derive(Deserialize)]
+struct RawEntry {
+    id: String,
+    position: [f64; 3],
+    world_from_camera: [[f64; 3]; 3],
+    #[serde(default)]
+    hdr: Option<String>,
+    #[serde(default)]
+    brackets: Vec<RawBracket>,
+    #[serde(default)]
+    sdr: Option<String>,
+    #[serde(default)]
+    ground_truth: Option<String>,
+}
+
+#[derive(Deserialize)]
+struct RawBracket {
+    file: String,
+    ev: f32,
+    #[serde(default)]
+    exposure_time_s: Option<f32>,
+}
+
+#[derive(Deserialize)]
+struct RawCamera {
+    #[serde(default)]
+    response: Option<String>,
+    #[serde(default)]
+    path_gain: Option<f64>,
+}
+
+impl Scene {
+    /// Loads `dir/poses.json` (or a `poses.json` path given directly).
+    pub fn load(dir: &Path) -> Result<Scene> {
+        let (root, file) = if dir.is_file() {
+            (
+                dir.parent().unwrap_or(Path::new(".")).to_path_buf(),
+                dir.to_path_buf(),
+            )
+        } else {
+            (dir.to_path_buf(), dir.join("poses.json"))
+        };
+        let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
+        Self::parse(&text, &root, &file)
+    }
+
+    /// Parses the text of a `poses.json`; `root` resolves relative paths and `file`
+    /// names the source in errors.
+    pub fn parse(text: &str, root: &Path, file: &Path) -> Result<Scene> {
+        let raw: RawScene = serde_json::from_str(text)
+            .map_err(|e| Error::format(file, format!("not a valid scene description: {e}")))?;
+        let mut warnings = Vec::new();
+        let mut pose_of = |kind: &str, e: &RawEntry| -> Result<Pose> {
+            let p = Vec3::new(
+                e.position[0] as f32,
+                e.position[1] as f32,
+                e.position[2] as f32,
+            );
+            if !p.is_finite() {
+                return Err(Error::format(
+                    file,
+                    format!("{kind} {}: position is not finite", e.id),
+                ));
+            }
+            let m = e.world_from_camera;
+            // Row-major in the file; glam is column-major.
+            let mat = Mat3::from_cols(
+                Vec3::new(m[0][0] as f32, m[1][0] as f32, m[2][0] as f32),
+                Vec3::new(m[0][1] as f32, m[1][1] as f32, m[2][1] as f32),
+                Vec3::new(m[0][2] as f32, m[1][2] as f32, m[2][2] as f32),
+            );
+            let fixed = orthonormalize(mat).ok_or_else(|| {
+                Error::format(
+                    file,
+                    format!("{kind} {}: world_from_camera is not a rotation", e.id),
+                )
+            })?;
+            let err = (fixed - mat)
+                .to_cols_array()
+                .iter()
+                .fold(0.0f32, |a, v| a.max(v.abs()));
+            if err > 1e-3 {
+                warnings.push(format!("{kind} {}: world_from_camera was not orthonormal (max deviation {err:.4}); used the nearest rotation", e.id));
+            }
+            Ok(Pose {
+                position: p,
+                world_from_camera: fixed,
+            })
+        };
+        let resolve = |s: &str| -> PathBuf {
+            let p = Path::new(s);
+            if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                root.join(p)
+            }
+        };
+        let mut probes = Vec::new();
+        for e in &raw.probes {
+            let pose = pose_of("probe", e)?;
+            let hdr = e.hdr.as_deref().map(resolve).or_else(|| {
+                let p = root.join("probes").join(format!("{}.exr", e.id));
+                p.exists().then_some(p)
+            });
+            let brackets = e
+                .brackets
+                .iter()
+                .map(|b| Bracket {
+                    file: resolve(&b.file),
+                    ev: b.ev,
+                    exposure_time_s: b.exposure_time_s,
+                })
+                .collect();
+            probes.push(Probe {
+                id: e.id.clone(),
+                pose,
+                hdr,
+                brackets,
+            });
+        }
+        let mut frames = Vec::new();
+        for e in &raw.frames {
+            let pose = pose_of("frame", e)?;
+            let sdr =
+                e.sdr.as_deref().map(resolve).ok_or_else(|| {
+                    Error::format(file, format!("frame {}: missing key `sdr`", e.id))
+                })?;
+            frames.push(Frame {
+                id: e.id.clone(),
+                pose,
+                sdr,
+                ground_truth: e.ground_truth.as_deref().map(resolve),
+            });
+        }
+        if probes.is_empty() {
+            return Err(Error::format(
+                file,
+                "`probes` is empty: at least one probe is needed",
+            ));
+        }
+        let mut ids = std::collections::HashSet::new();
+        for f in &frames {
+            if f.id.is_empty() || f.id.contains(['/', '\\']) || f.id.starts_with('.') {
+                return Err(Error::format(
+                    file,
+                    format!("frame id {:?} cannot name an output file", f.id),
+                ));
+            }
+            if !ids.insert(&f.id) {
+                return Err(Error::format(
+                    file,
+                    format!("frame id {:?} appears twice", f.id),
+                ));
+            }
+        }
+        let camera = raw.camera.unwrap_or(RawCamera {
+            response: None,
+            path_gain: None,
+        });
+        let response = match camera.response.as_deref() {
+            Some(t) => Response::parse(t).unwrap_or_else(|| {
+                warnings.push(format!(
+                    "camera.response {t:?} not understood; assuming sRGB"
+                ));
+                Response::Srgb
+            }),
+            None => {
+                warnings.push("camera.response missing; assuming sRGB".into());
+                Response::Srgb
+            }
+        };
+        let path_gain = match camera.path_gain {
+            Some(g) if g.is_finite() && g > 0.0 => g as f32,
+            Some(g) => {
+                return Err(Error::format(
+                    file,
+                    format!("camera.path_gain must be a positive number, got {g}"),
+                ))
+            }
+            None => {
+                warnings.push("camera.path_gain missing; assuming 1".into());
+                1.0
+            }
+        };
+        Ok(Scene {
+            root: root.to_path_buf(),
+            name: raw.scene.unwrap_or_else(|| {
+                root.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            }),
+            probes,
+            frames,
+            response,
+            path_gain,
+            warnings,
+        })
+    }
+
+    /// Index of the probe nearest to `position` (ties go to the lower index).
+    pub fn nearest_probe(&self, position: Vec3) -> usize {
+        self.probes_by_distance(position)[0]
+    }
+
+    /// Probe indices sorted by distance to `position` (stable for ties).
+    pub fn probes_by_distance(&self, position: Vec3) -> Vec<usize> {
+        let mut idx: Vec<usize> = (0..self.probes.len()).collect();
+        idx.sort_by(|&a, &b| {
+            let da = self.probes[a].pose.position.distance_squared(position);
+            let db = self.probes[b].pose.position.distance_squared(position);
+            da.total_cmp(&db).then(a.cmp(&b))
+        });
+        idx
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"{"scene":"t","probes":[{"id":"p0","position":[0,0,1.5],"world_from_camera":[[1,0,0],[0,0,-1],[0,1,0]],"hdr":"probes/p0.exr"},
+        {"id":"p1","position":[2,0,1.5],"world_from_camera":[[1,0,0],[0,0,-1],[0,1,0]],"hdr":"probes/p1.exr"}],
+        "frames":[{"id":"f0","position":[1.5,0,1.5],"world_from_camera":[[1.01,0,0],[0,0,-1],[0,1,0]],"sdr":"path/f0.jpg"}],
+        "camera":{"response":"f(x) = min(1, 1.08 * x^(1/2.2) / (1 + 0.08 * x^(1/2.2)))","path_gain":0.5}}"#;
+
+    #[test]
+    fn parses_and_repairs_rotation() {
+        let s = Scene::parse(GOOD, Path::new("/data"), Path::new("/data/poses.json")).unwrap();
+        assert_eq!(s.probes.len(), 2);
+        assert_eq!(s.nearest_probe(s.frames[0].pose.position), 1);
+        assert!(s.warnings.iter().any(|w| w.contains("orthonormal")));
+        assert!((s.frames[0].pose.world_from_camera.determinant() - 1.0).abs() < 1e-4);
+        assert_eq!(
+            s.probes[0].hdr.as_deref(),
+            Some(Path::new("/data/probes/p0.exr"))
+        );
+        // Camera +y (up) is world +z.
+        assert!((s.probes[0].pose.world_from_camera * Vec3::Y - Vec3::Z).length() < 1e-6);
+    }
+
+    #[test]
+    fn bad_scenes_name_file_and_problem() {
+        let e = Scene::parse(
+            "{\"probes\": 3}",
+            Path::new("/d"),
+            Path::new("/d/poses.json"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("/d/poses.json") && e.contains("invalid type"),
+            "{e}"
+        );
+        let no_sdr = GOOD.replace("\"sdr\":\"path/f0.jpg\"", "\"x\":1");
+        let e = Scene::parse(&no_sdr, Path::new("/d"), Path::new("/d/poses.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("sdr"), "{e}");
+        let singular = GOOD.replace("[[1.01,0,0],[0,0,-1],[0,1,0]]", "[[0,0,0],[0,0,0],[0,0,0]]");
+        assert!(Scene::parse(&singular, Path::new("/d"), Path::new("/d/poses.json")).is_err());
+    }
+}
