@@ -92,6 +92,24 @@ enum Cmd {
         #[command(flatten)]
         warp: WarpOpts,
     },
+    /// Score predictions against the scene's ground truth, with both baselines.
+    Eval {
+        /// Scene folder.
+        scene: PathBuf,
+        /// Prediction folder(s) from `lumiprobe run`; `LABEL=DIR` names a row.
+        #[arg(long, required = true)]
+        pred: Vec<String>,
+        /// Print JSON (table and per-frame scores) instead of the text table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Scores for two HDR panoramas (the second is the reference).
+    Compare {
+        /// Prediction.
+        a: PathBuf,
+        /// Reference.
+        b: PathBuf,
+    },
     /// Convert between HDR formats (.exr, .hdr, .pfm) by extension.
     Convert {
         /// Input file.
@@ -192,6 +210,13 @@ fn write_display(path: &Path, w: usize, h: usize, v: &[f32]) -> Result<()> {
     io::write_sdr(path, &img)
 }
 
+/// The method named in a run folder's report.json, for labelling eval rows.
+fn report_method(dir: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(dir.join("report.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    v["params"]["method"].as_str().map(|s| s.to_string())
+}
+
 fn main() {
     let cli = Cli::parse();
     if let Some(n) = cli.threads {
@@ -250,6 +275,33 @@ fn real_main(cli: Cli) -> Result<()> {
                 );
             }
         }
+        Cmd::Eval { scene, pred, json } => {
+            let scene = Scene::load(&scene)?;
+            let labelled: Vec<(String, PathBuf)> = pred
+                .iter()
+                .map(|p| match p.split_once('=') {
+                    Some((l, d)) => (l.to_string(), PathBuf::from(d)),
+                    None => {
+                        let label = report_method(Path::new(p)).unwrap_or_else(|| "prediction".into());
+                        (label, PathBuf::from(p))
+                    }
+                })
+                .collect();
+            let refs: Vec<(String, &Path)> = labelled.iter().map(|(l, d)| (l.clone(), d.as_path())).collect();
+            let ev = lumiprobe::pipeline::evaluate::evaluate(&scene, &refs)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?);
+            } else {
+                println!("scene {}", ev.scene);
+                print!("{}", ev.table.to_text());
+            }
+        }
+        Cmd::Compare { a, b } => {
+            let pa = io::read_hdr(&a)?;
+            let pb = io::read_hdr(&b)?;
+            let m = lumiprobe::eval::compare_resized(&pa, &pb)?;
+            println!("{}", serde_json::to_string_pretty(&m).map_err(|e| Error::Invalid(e.to_string()))?);
+        }
         Cmd::Convert { input, output } => {
             let img = io::read_hdr(&input)?;
             io::write_hdr(&output, &img)?;
@@ -299,6 +351,5 @@ fn real_main(cli: Cli) -> Result<()> {
             io::write_hdr(&output, &out)?;
         }
     }
-    let _: Option<Error> = None;
     Ok(())
 }

@@ -2,6 +2,8 @@
 //! loading what it needs once, writing one EXR per frame and a report, and resuming
 //! an interrupted run without redoing finished frames.
 
+pub mod evaluate;
+
 use crate::error::{Error, Result};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{Frame, Scene};
