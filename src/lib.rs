@@ -10,6 +10,7 @@ pub mod cv;
 pub mod error;
 pub mod eval;
 pub mod fsutil;
+pub mod ibl;
 pub mod image;
 pub mod pipeline;
 pub mod scene;
