@@ -34,6 +34,18 @@ struct WarpOpts {
     /// Feature detector (Debian's OpenCV has no SURF).
     #[arg(long, value_enum, default_value_t = Detector::Sift)]
     detector: Detector,
+    /// Keep at most this many features per face (0 = all).
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().max_features)]
+    max_features: i32,
+    /// Detector threshold (SIFT contrast; 0 = OpenCV default 0.04).
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().detector_threshold)]
+    detector_threshold: f64,
+    /// Gaussian blur (pixels) before detection, against sensor noise.
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().blur_sigma)]
+    blur_sigma: f32,
+    /// Candidates per face when matching by pose.
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().pose_candidates)]
+    pose_candidates: usize,
     /// Lowe ratio-test threshold.
     #[arg(long, default_value_t = 0.7)]
     ratio: f32,
@@ -69,6 +81,10 @@ impl WarpOpts {
             candidates: self.candidates,
             probe_tonemap: self.probe_tonemap,
             face_size: self.face_size,
+            max_features: self.max_features,
+            detector_threshold: self.detector_threshold,
+            blur_sigma: self.blur_sigma,
+            pose_candidates: self.pose_candidates,
             ..Default::default()
         }
     }
@@ -89,6 +105,25 @@ enum Cmd {
         /// Working size WxH (default: the frames' size).
         #[arg(long, value_parser = parse_size)]
         size: Option<(usize, usize)>,
+        #[command(flatten)]
+        warp: WarpOpts,
+    },
+    /// Time the method per frame (probe features cached) with a stage breakdown.
+    Bench {
+        /// Scene folder.
+        scene: PathBuf,
+        /// Working size WxH (default: the frames' size).
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(usize, usize)>,
+        /// Threads for the timed runs.
+        #[arg(long, default_value_t = 1)]
+        bench_threads: usize,
+        /// Repetitions over all frames.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
         #[command(flatten)]
         warp: WarpOpts,
     },
@@ -272,6 +307,32 @@ fn real_main(cli: Cli) -> Result<()> {
                     homog,
                     report.frames.len() * 5,
                     out.join("report.json").display()
+                );
+            }
+        }
+        Cmd::Bench { scene, size, bench_threads, repeats, json, warp } => {
+            let scene = Scene::load(&scene)?;
+            let params = RunParams { method: Method::Warp, size, warp: warp.params() };
+            let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r).map_err(|e| Error::Invalid(e.to_string()))?);
+            } else {
+                println!(
+                    "{} {}x{} warp, {} thread(s), {} frames x {}: mean {:.1} ms/frame (median {:.1}); tonemap {:.1}, features {:.1}, matching {:.1}, warp+stitch {:.1} ms; probe preparation {:.1} ms once per probe; peak RSS {}",
+                    r.scene,
+                    r.size.0,
+                    r.size.1,
+                    r.threads,
+                    r.frames,
+                    r.repeats,
+                    r.mean_ms,
+                    r.median_ms,
+                    r.stages.tonemap_ms,
+                    r.stages.features_ms,
+                    r.stages.matching_ms,
+                    r.stages.warp_stitch_ms,
+                    r.probe_prepare_ms,
+                    r.peak_rss_mib.map(|m| format!("{m:.0} MiB")).unwrap_or_else(|| "n/a".into())
                 );
             }
         }

@@ -2,6 +2,7 @@
 //! loading what it needs once, writing one EXR per frame and a report, and resuming
 //! an interrupted run without redoing finished frames.
 
+pub mod bench;
 pub mod evaluate;
 
 use crate::error::{Error, Result};

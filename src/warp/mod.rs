@@ -12,6 +12,7 @@
 //! Warping never resamples a face image: each output pixel maps through the
 //! homography to a direction of the probe panorama, which is sampled in float.
 
+mod geometry;
 pub mod probe;
 
 pub use probe::{PreparedProbe, ProbeTonemap};
@@ -20,7 +21,7 @@ use crate::cv::{self, DetectParams, Detector, Estimator, Features};
 use crate::error::Result;
 use crate::image::{HdrImage, SdrImage};
 use crate::scene::Pose;
-use crate::sphere::{pixel_to_dir, sample_dir, ypr_to_mat, CubeFace, FACES};
+use crate::sphere::{sample_dir, ypr_to_mat, CubeFace, FACES};
 use glam::{DMat3, DVec3, Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -86,8 +87,8 @@ impl Default for WarpParams {
             yaw_steps: 4,
             face_size: None,
             detector: Detector::Sift,
-            max_features: 0,
-            detector_threshold: 0.01,
+            max_features: 300,
+            detector_threshold: 0.02,
             blur_sigma: 1.0,
             face_extent: 1.2,
             ratio: 0.7,
@@ -207,27 +208,17 @@ pub(crate) fn px_to_fc(x: f32, m: usize, e: f32) -> f32 {
     e * (2.0 * (x + 0.5) / m as f32 - 1.0)
 }
 
-/// Inverse of [`px_to_fc`].
-#[inline]
-pub(crate) fn fc_to_px(a: f32, m: usize, e: f32) -> f32 {
-    (a / e + 1.0) * 0.5 * m as f32 - 0.5
-}
 
 /// 8-bit gray image of `face` (extent `e`, `m` pixels) of a panorama holding display
 /// values in [0, 1], seen by a camera rotated by `r`.
 pub(crate) fn gray_face(display: &HdrImage, face: CubeFace, m: usize, e: f32, r: Mat3) -> Vec<u8> {
-    let mut out = Vec::with_capacity(m * m);
-    for j in 0..m {
-        let b = px_to_fc(j as f32, m, e);
-        for i in 0..m {
-            let a = px_to_fc(i as f32, m, e);
-            let c = sample_dir(display, r * face.dir(a, b));
-            out.push(
-                ((0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]).clamp(0.0, 1.0) * 255.0 + 0.5) as u8,
-            );
-        }
-    }
-    out
+    let lut = geometry::face_lookup(face, m, e, r, display.width(), display.height());
+    lut.iter()
+        .map(|&[x, y]| {
+            let c = crate::sphere::sample_px(display, x, y);
+            ((0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]).clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+        })
+        .collect()
 }
 
 /// Display values in [0, 1] of an 8-bit frame (codes / 255).
@@ -380,6 +371,40 @@ fn match_face(
 ) -> Result<FaceResult> {
     let m = p.match_size(n);
     let e = p.face_extent.max(1.0);
+    // Probe faces first (cached after the first frame): a frame face whose candidates
+    // are all featureless (a plain ceiling) is not worth detecting features on.
+    let mut probe_features_ms = 0.0;
+    let mut cands = Vec::new();
+    for cand in candidates_for(f, rel, p) {
+        let t2 = Instant::now();
+        let (pf, computed) = probe.face_features(cand.yaw_step, cand.face, m, p)?;
+        if computed {
+            probe_features_ms += ms(t2);
+        }
+        if pf.features.len() >= p.min_inliers.max(4) {
+            cands.push((cand, pf));
+        }
+    }
+    if cands.is_empty() {
+        return Ok(FaceResult {
+            report: FaceReport {
+                face: f,
+                source: "fallback".into(),
+                candidate: None,
+                features: 0,
+                matches: 0,
+                inliers: 0,
+                reprojection_error: 0.0,
+                reason: Some("probe faces have too few features; face skipped".into()),
+                homography: None,
+            },
+            map: FaceMap::Fallback,
+            tonemap_ms: 0.0,
+            features_ms: 0.0,
+            probe_features_ms,
+            matching_ms: 0.0,
+        });
+    }
     let t0 = Instant::now();
     let gray = gray_face(display, f, m, e, Mat3::IDENTITY);
     let tonemap_ms = ms(t0);
@@ -389,7 +414,6 @@ fn match_face(
     let px_per_unit = m as f64 / (2.0 * e as f64);
     let to_fc = |(x, y): (f32, f32)| (px_to_fc(x, m, e), px_to_fc(y, m, e));
     let features_ms = ms(t1);
-    let mut probe_features_ms = 0.0;
     let mut matching_ms = 0.0;
     let mut best: Option<(usize, FaceReport, FaceMap)> = None;
     let mut last_reason = if feats.len() < 4 {
@@ -398,12 +422,7 @@ fn match_face(
         None
     };
     if feats.len() >= 4 {
-        for cand in candidates_for(f, rel, p) {
-            let t2 = Instant::now();
-            let (pf, computed) = probe.face_features(cand.yaw_step, cand.face, m, p)?;
-            if computed {
-                probe_features_ms += ms(t2);
-            }
+        for (cand, pf) in cands {
             let t3 = Instant::now();
             let pairs = pf.index.match_ratio(&feats, p.ratio)?;
             let rot = ypr_to_mat(p.yaw_deg(cand.yaw_step), 0.0, 0.0);
@@ -423,16 +442,31 @@ fn match_face(
                 matching_ms += ms(t3);
                 continue;
             }
-            let src: Vec<(f32, f32)> = pairs
-                .iter()
-                .map(|&(_, t)| to_fc(pf.features.point(t)))
-                .collect();
-            let dst: Vec<(f32, f32)> = pairs.iter().map(|&(q, _)| to_fc(feats.point(q))).collect();
+            // Keep only matches the known rotation allows (up to the same deviation the
+            // final check accepts): most wrong matches go before RANSAC sees them.
+            let max_dev = 2.0 * p.max_prior_deviation;
+            let (mut src, mut dst) = (Vec::with_capacity(pairs.len()), Vec::with_capacity(pairs.len()));
+            for &(q, t) in &pairs {
+                let (ta, tb) = to_fc(feats.point(q));
+                let (pa, pb) = to_fc(pf.features.point(t));
+                if let Some((ea, eb)) = rotation_prediction(rel, rot, f, cand.face, ta, tb) {
+                    if (ea - pa).hypot(eb - pb) <= max_dev {
+                        src.push((pa, pb));
+                        dst.push((ta, tb));
+                    }
+                }
+            }
+            report.matches = src.len();
+            if src.len() < p.min_inliers.max(4) {
+                last_reason = Some(format!("{} of {} matches agree with the known rotation", src.len(), pairs.len()));
+                matching_ms += ms(t3);
+                continue;
+            }
             let fitted = cv::find_homography(
                 &src,
                 &dst,
                 p.ransac_threshold / px_per_unit,
-                2000,
+                1000,
                 0.995,
                 p.estimator,
             )?;
@@ -595,67 +629,31 @@ fn face_value(
 }
 
 /// Assembles the output panorama: each pixel takes the mapping of the cube face it
-/// falls on, cross-faded with the neighbouring face's mapping near face edges.
-#[allow(clippy::too_many_arguments)]
-fn stitch(
-    maps: &[FaceMap; 6],
-    rel: Mat3,
-    probe: &PreparedProbe,
-    sdr_linear: &HdrImage,
-    p: &WarpParams,
-    w: usize,
-    h: usize,
-) -> HdrImage {
+/// falls on, cross-faded with the neighbouring face's mapping near face edges. The
+/// SDR face reads the frame's own pixel (output and frame share their size) or
+/// samples it when the sizes differ.
+fn stitch(maps: &[FaceMap; 6], rel: Mat3, probe: &PreparedProbe, sdr_linear: &HdrImage, p: &WarpParams, w: usize, h: usize) -> HdrImage {
     use rayon::prelude::*;
-    let mut out = HdrImage::new(w, h);
-    let blend = p.seam_blend.max(1e-4);
+    let geo = geometry::stitch_map(w, h, p.seam_blend);
+    let same_size = sdr_linear.width() == w && sdr_linear.height() == h;
     let hdr = &probe.image;
-    out.rows_mut()
-        .enumerate()
-        .par_bridge()
-        .for_each(|(row, line)| {
-            for col in 0..w {
-                let d = pixel_to_dir(col, row, w, h);
-                let mut acc = [0.0f64; 3];
-                let mut wsum = 0.0f64;
-                for f in FACES {
-                    let Some((a, b)) = f.project(d) else { continue };
-                    let edge = a.abs().max(b.abs());
-                    if edge > 1.0 + blend {
-                        continue;
-                    }
-                    // Weight 1 well inside, falling to 0 at `blend` beyond the edge.
-                    let wgt = ((1.0 + blend - edge) / (2.0 * blend)).clamp(0.0, 1.0) as f64;
-                    if wgt <= 0.0 {
-                        continue;
-                    }
-                    let v = face_value(
-                        &maps[f.index()],
-                        a,
-                        b,
-                        d,
-                        rel,
-                        hdr,
-                        sdr_linear,
-                        p.extrapolate,
-                    )
-                    .unwrap_or_else(|| sample_dir(hdr, rel * d));
-                    for k in 0..3 {
-                        acc[k] += wgt * v[k] as f64;
-                    }
-                    wsum += wgt;
-                }
-                let px = if wsum > 0.0 {
-                    [
-                        (acc[0] / wsum) as f32,
-                        (acc[1] / wsum) as f32,
-                        (acc[2] / wsum) as f32,
-                    ]
-                } else {
-                    sample_dir(hdr, rel * d)
+    let mut out = HdrImage::new(w, h);
+    out.rows_mut().enumerate().par_bridge().for_each(|(row, line)| {
+        for col in 0..w {
+            let i = row * w + col;
+            let d = geo.dirs[i];
+            let mut acc = [0.0f32; 3];
+            for t in &geo.taps[geo.start[i] as usize..geo.start[i + 1] as usize] {
+                let v = match &maps[t.face as usize] {
+                    FaceMap::Sdr if same_size => sdr_linear.get(col, row),
+                    m => face_value(m, t.a, t.b, d, rel, hdr, sdr_linear, p.extrapolate).unwrap_or_else(|| sample_dir(hdr, rel * d)),
                 };
-                line[3 * col..3 * col + 3].copy_from_slice(&px);
+                for k in 0..3 {
+                    acc[k] += t.w * v[k];
+                }
             }
-        });
+            line[3 * col..3 * col + 3].copy_from_slice(&acc);
+        }
+    });
     out
 }
