@@ -23,7 +23,11 @@ fn main() {
     let libdir = pkg_config(&["--variable=libdir"]);
 
     let mut build = cxx_build::bridge("src/cv.rs");
-    build.file("cpp/cv_bridge.cc").std("c++17").flag_if_supported("-O2").flag_if_supported("-Wno-unused-parameter");
+    build
+        .file("cpp/cv_bridge.cc")
+        .std("c++17")
+        .flag_if_supported("-O2")
+        .flag_if_supported("-Wno-unused-parameter");
     for inc in cflags.split_whitespace() {
         if let Some(p) = inc.strip_prefix("-I") {
             build.include(p);
@@ -32,7 +36,14 @@ fn main() {
     build.compile("lumiprobe_cpp");
 
     println!("cargo:rustc-link-search=native={libdir}");
-    for m in ["opencv_core", "opencv_imgproc", "opencv_features2d", "opencv_flann", "opencv_calib3d", "opencv_video"] {
+    for m in [
+        "opencv_core",
+        "opencv_imgproc",
+        "opencv_features2d",
+        "opencv_flann",
+        "opencv_calib3d",
+        "opencv_video",
+    ] {
         println!("cargo:rustc-link-lib=dylib={m}");
     }
     for f in ["cpp/cv_bridge.h", "cpp/cv_bridge.cc", "src/cv.rs"] {
