@@ -49,7 +49,14 @@ const CACHE_LIMIT: usize = 64;
 /// Panorama pixel positions (for [`crate::sphere::sample_px`]) of each pixel of an
 /// `m x m` image of `face` spanning `[-e, e]`, seen by a camera rotated by `rot`,
 /// in a `w x h` panorama.
-pub(crate) fn face_lookup(face: CubeFace, m: usize, e: f32, rot: Mat3, w: usize, h: usize) -> Arc<Vec<[f32; 2]>> {
+pub(crate) fn face_lookup(
+    face: CubeFace,
+    m: usize,
+    e: f32,
+    rot: Mat3,
+    w: usize,
+    h: usize,
+) -> Arc<Vec<[f32; 2]>> {
     let rbits = rot.to_cols_array().map(f32::to_bits);
     let key: FaceKey = (face.index() as u8, m, e.to_bits(), rbits, w, h);
     if let Ok(c) = face_cache().lock() {
@@ -101,7 +108,12 @@ pub(crate) fn stitch_map(w: usize, h: usize, blend: f32) -> Arc<StitchMap> {
                 // Weight 1 well inside, falling to 0 at `blend` beyond the edge.
                 let wgt = ((1.0 + blend - edge) / (2.0 * blend)).clamp(0.0, 1.0);
                 if wgt > 0.0 {
-                    taps.push(Tap { face: f.index() as u8, a, b, w: wgt });
+                    taps.push(Tap {
+                        face: f.index() as u8,
+                        a,
+                        b,
+                        w: wgt,
+                    });
                     wsum += wgt;
                 }
             }

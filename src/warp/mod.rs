@@ -208,7 +208,6 @@ pub(crate) fn px_to_fc(x: f32, m: usize, e: f32) -> f32 {
     e * (2.0 * (x + 0.5) / m as f32 - 1.0)
 }
 
-
 /// 8-bit gray image of `face` (extent `e`, `m` pixels) of a panorama holding display
 /// values in [0, 1], seen by a camera rotated by `r`.
 pub(crate) fn gray_face(display: &HdrImage, face: CubeFace, m: usize, e: f32, r: Mat3) -> Vec<u8> {
@@ -445,7 +444,10 @@ fn match_face(
             // Keep only matches the known rotation allows (up to the same deviation the
             // final check accepts): most wrong matches go before RANSAC sees them.
             let max_dev = 2.0 * p.max_prior_deviation;
-            let (mut src, mut dst) = (Vec::with_capacity(pairs.len()), Vec::with_capacity(pairs.len()));
+            let (mut src, mut dst) = (
+                Vec::with_capacity(pairs.len()),
+                Vec::with_capacity(pairs.len()),
+            );
             for &(q, t) in &pairs {
                 let (ta, tb) = to_fc(feats.point(q));
                 let (pa, pb) = to_fc(pf.features.point(t));
@@ -458,7 +460,11 @@ fn match_face(
             }
             report.matches = src.len();
             if src.len() < p.min_inliers.max(4) {
-                last_reason = Some(format!("{} of {} matches agree with the known rotation", src.len(), pairs.len()));
+                last_reason = Some(format!(
+                    "{} of {} matches agree with the known rotation",
+                    src.len(),
+                    pairs.len()
+                ));
                 matching_ms += ms(t3);
                 continue;
             }
@@ -632,28 +638,214 @@ fn face_value(
 /// falls on, cross-faded with the neighbouring face's mapping near face edges. The
 /// SDR face reads the frame's own pixel (output and frame share their size) or
 /// samples it when the sizes differ.
-fn stitch(maps: &[FaceMap; 6], rel: Mat3, probe: &PreparedProbe, sdr_linear: &HdrImage, p: &WarpParams, w: usize, h: usize) -> HdrImage {
+fn stitch(
+    maps: &[FaceMap; 6],
+    rel: Mat3,
+    probe: &PreparedProbe,
+    sdr_linear: &HdrImage,
+    p: &WarpParams,
+    w: usize,
+    h: usize,
+) -> HdrImage {
     use rayon::prelude::*;
     let geo = geometry::stitch_map(w, h, p.seam_blend);
     let same_size = sdr_linear.width() == w && sdr_linear.height() == h;
     let hdr = &probe.image;
     let mut out = HdrImage::new(w, h);
-    out.rows_mut().enumerate().par_bridge().for_each(|(row, line)| {
-        for col in 0..w {
-            let i = row * w + col;
-            let d = geo.dirs[i];
-            let mut acc = [0.0f32; 3];
-            for t in &geo.taps[geo.start[i] as usize..geo.start[i + 1] as usize] {
-                let v = match &maps[t.face as usize] {
-                    FaceMap::Sdr if same_size => sdr_linear.get(col, row),
-                    m => face_value(m, t.a, t.b, d, rel, hdr, sdr_linear, p.extrapolate).unwrap_or_else(|| sample_dir(hdr, rel * d)),
-                };
-                for k in 0..3 {
-                    acc[k] += t.w * v[k];
+    out.rows_mut()
+        .enumerate()
+        .par_bridge()
+        .for_each(|(row, line)| {
+            for col in 0..w {
+                let i = row * w + col;
+                let d = geo.dirs[i];
+                let mut acc = [0.0f32; 3];
+                for t in &geo.taps[geo.start[i] as usize..geo.start[i + 1] as usize] {
+                    let v = match &maps[t.face as usize] {
+                        FaceMap::Sdr if same_size => sdr_linear.get(col, row),
+                        m => face_value(m, t.a, t.b, d, rel, hdr, sdr_linear, p.extrapolate)
+                            .unwrap_or_else(|| sample_dir(hdr, rel * d)),
+                    };
+                    for k in 0..3 {
+                        acc[k] += t.w * v[k];
+                    }
                 }
+                line[3 * col..3 * col + 3].copy_from_slice(&acc);
             }
-            line[3 * col..3 * col + 3].copy_from_slice(&acc);
-        }
-    });
+        });
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sphere::{pixel_to_dir, rotate};
+    use crate::tonemap::Response;
+    use std::sync::Arc;
+
+    /// A panorama with blocky texture at several scales (corners for SIFT) and a lamp.
+    fn textured(w: usize, h: usize) -> HdrImage {
+        let hash = |a: i32, b: i32, s: u32| -> f32 {
+            let mut x = (a as u32).wrapping_mul(73856093)
+                ^ (b as u32).wrapping_mul(19349663)
+                ^ s.wrapping_mul(83492791);
+            x ^= x >> 13;
+            x = x.wrapping_mul(0x5bd1e995);
+            x ^= x >> 15;
+            (x & 0xffff) as f32 / 65535.0
+        };
+        HdrImage::from_fn(w, h, |x, y| {
+            let d = pixel_to_dir(x, y, w, h);
+            // Cells on the cube around the camera, so texture density is even.
+            let (f, a, b) = CubeFace::of_dir(d);
+            let s = f.index() as u32;
+            let c1 = hash((a * 6.0).floor() as i32, (b * 6.0).floor() as i32, s);
+            let c2 = hash((a * 17.0).floor() as i32, (b * 17.0).floor() as i32, s + 9);
+            let v = 0.05 + 0.6 * c1 + 0.35 * c2;
+            let lamp = if d.dot(Vec3::new(0.3, 0.9, -0.3).normalize()) > 0.995 {
+                200.0
+            } else {
+                0.0
+            };
+            [v + lamp, 0.9 * v + lamp, 0.8 * v + lamp]
+        })
+    }
+
+    fn pose(yaw: f32) -> Pose {
+        Pose {
+            position: Vec3::ZERO,
+            world_from_camera: ypr_to_mat(yaw, 0.0, 0.0),
+        }
+    }
+
+    #[test]
+    fn known_rotation_is_recovered_as_homographies() {
+        let (w, h) = (512, 256);
+        let probe_img = textured(w, h);
+        let probe_pose = pose(0.0);
+        let frame_pose = pose(30.0);
+        let rel = frame_pose.from_other(&probe_pose);
+        // The frame sees exactly the probe turned by 30 degrees (no parallax).
+        let truth = rotate(&probe_img, rel, w, h);
+        let resp = Response::Gamma { gamma: 2.2 };
+        let sdr_codes: Vec<u8> = truth
+            .data()
+            .iter()
+            .map(|&v| (resp.encode(v * 0.8) * 255.0 + 0.5) as u8)
+            .collect();
+        let sdr = SdrImage::from_vec(w, h, sdr_codes).unwrap();
+        let lin = truth.clone();
+        let probe = PreparedProbe::new(
+            Arc::new(probe_img),
+            probe_pose,
+            ProbeTonemap::Camera,
+            &resp,
+            0.8,
+        );
+        let p = WarpParams {
+            blur_sigma: 0.0,
+            ..WarpParams::default()
+        };
+        let (out, rep) = warp_frame(&sdr, &lin, &frame_pose, &probe, &p, w, h).unwrap();
+        let sides: Vec<&FaceReport> = rep.faces.iter().filter(|f| f.face.is_side()).collect();
+        assert!(
+            sides.iter().all(|f| f.source == "homography"),
+            "{:#?}",
+            rep.faces
+        );
+        // Each homography agrees with the rotation's at the face corners.
+        for f in &sides {
+            let hm = homography_to_dmat(&f.homography.unwrap());
+            let cand = f.candidate.unwrap();
+            let rot = ypr_to_mat(p.yaw_deg(cand.yaw_step), 0.0, 0.0);
+            let hinv = hm.inverse();
+            for &(a, b) in &[(-1.0f32, -1.0f32), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                let (qa, qb) = apply_h(&hinv, a as f64, b as f64).unwrap();
+                let (ea, eb) = rotation_prediction(rel, rot, f.face, cand.face, a, b).unwrap();
+                let err = ((qa as f32 - ea).powi(2) + (qb as f32 - eb).powi(2)).sqrt();
+                assert!(err < 0.02, "{:?}: corner off by {err} face units", f.face);
+            }
+        }
+        // And the warped HDR matches the truth, lamp included (no clamping).
+        let mut worst = 0.0f32;
+        for y in 40..216 {
+            for x in 0..w {
+                let (a, b) = (out.get(x, y), truth.get(x, y));
+                worst = worst.max((a[1] - b[1]).abs() / b[1].max(0.2));
+            }
+        }
+        let max_out = out.data().iter().cloned().fold(0.0f32, f32::max);
+        assert!(max_out > 150.0, "lamp lost: max {max_out}");
+        assert!(worst < 0.6, "worst relative error {worst}");
+        let mean_err: f32 = out
+            .data()
+            .iter()
+            .zip(truth.data())
+            .map(|(a, b)| (a - b).abs() / b.max(0.2))
+            .sum::<f32>()
+            / out.data().len() as f32;
+        assert!(mean_err < 0.03, "mean relative error {mean_err}");
+    }
+
+    #[test]
+    fn textureless_frame_falls_back_cleanly() {
+        let (w, h) = (256, 128);
+        let probe_img = textured(w, h);
+        let flat = SdrImage::from_vec(w, h, vec![120; w * h * 3]).unwrap();
+        let lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        let resp = Response::Srgb;
+        let probe = PreparedProbe::new(
+            Arc::new(probe_img.clone()),
+            pose(0.0),
+            ProbeTonemap::Reinhard05,
+            &resp,
+            1.0,
+        );
+        let (out, rep) = warp_frame(
+            &flat,
+            &lin,
+            &pose(10.0),
+            &probe,
+            &WarpParams::default(),
+            w,
+            h,
+        )
+        .unwrap();
+        assert!(rep.faces.iter().all(|f| f.source != "homography"));
+        assert_eq!(out.count_invalid(), 0);
+        // Away from the bottom face the output is the rotated probe.
+        let expect = rotate(&probe_img, pose(10.0).from_other(&pose(0.0)), w, h);
+        let (a, b) = (out.get(100, 64), expect.get(100, 64));
+        assert!((a[0] - b[0]).abs() < 1e-4);
+    }
+
+    #[test]
+    fn degenerate_homographies_are_rejected() {
+        let p = WarpParams::default();
+        let rel = Mat3::IDENTITY;
+        let rot = Mat3::IDENTITY;
+        let f = CubeFace::Front;
+        // Identity passes.
+        assert!(check_homography(&DMat3::IDENTITY, rel, rot, f, f, &p).is_none());
+        // Mirror, collapse, huge scale, far from the rotation, non-finite.
+        let mirror = DMat3::from_diagonal(DVec3::new(-1.0, 1.0, 1.0));
+        let collapse = DMat3::from_diagonal(DVec3::new(1.0, 0.0, 1.0));
+        let zoom = DMat3::from_diagonal(DVec3::new(5.0, 5.0, 1.0));
+        let shift = DMat3::from_cols(DVec3::X, DVec3::Y, DVec3::new(0.9, 0.0, 1.0));
+        let nan = DMat3::from_diagonal(DVec3::new(f64::NAN, 1.0, 1.0));
+        let behind = DMat3::from_cols(DVec3::X, DVec3::Y, DVec3::new(0.0, 0.0, -1.0));
+        for (name, hm) in [
+            ("mirror", mirror),
+            ("collapse", collapse),
+            ("zoom", zoom),
+            ("shift", shift),
+            ("nan", nan),
+            ("behind", behind),
+        ] {
+            assert!(
+                check_homography(&hm, rel, rot, f, f, &p).is_some(),
+                "{name} accepted"
+            );
+        }
+    }
 }
