@@ -1,47 +1,328 @@
-//! HDR and 8-bit file formats. (Minimal first version; hardened per-codec modules follow.)
+//! HDR and 8-bit image files: OpenEXR, Radiance RGBE, PFM, PNG and JPEG.
+//!
+//! Readers pick the format from the file's magic bytes (the extension is only a
+//! fallback), check the declared size against [`Limits`] before allocating, and
+//! never panic on malformed input: every failure is an [`Error`] naming the file.
+//! Writers pick the format from the extension and write atomically
+//! (temporary file + rename, see [`crate::fsutil`]).
 
-use crate::error::Result;
-use crate::error::Error as LpError;
+pub mod exr;
+pub mod ldr;
+pub mod pfm;
+pub mod rgbe;
+
+pub use self::exr::{ExrWriteOptions, Overflow};
+pub use self::ldr::{linear_to_sdr, sdr_to_linear};
+
+use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
 use std::path::Path;
 
-/// Reads an HDR image, choosing the format by extension.
+/// Resource limits applied while decoding untrusted files.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest accepted `width * height`; larger declared sizes fail with
+    /// [`Error::TooLarge`] before any pixel buffer is allocated.
+    pub max_pixels: u64,
+}
+
+impl Default for Limits {
+    /// 2^28 pixels (e.g. 23170 x 11585), about 3 GiB as float RGB.
+    fn default() -> Self {
+        Limits {
+            max_pixels: 1 << 28,
+        }
+    }
+}
+
+/// The image file formats lumiprobe reads and writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// OpenEXR (`.exr`), HDR.
+    Exr,
+    /// Radiance RGBE (`.hdr`, `.pic`), HDR.
+    Rgbe,
+    /// Portable float map (`.pfm`), HDR.
+    Pfm,
+    /// PNG (`.png`), 8-bit.
+    Png,
+    /// JPEG (`.jpg`, `.jpeg`), 8-bit.
+    Jpeg,
+}
+
+impl Format {
+    /// Recognises a format from the first bytes of a file.
+    pub fn sniff(bytes: &[u8]) -> Option<Format> {
+        if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+            Some(Format::Exr)
+        } else if bytes.starts_with(b"#?RADIANCE") || bytes.starts_with(b"#?RGBE") {
+            Some(Format::Rgbe)
+        } else if (bytes.starts_with(b"PF") || bytes.starts_with(b"Pf"))
+            && bytes.get(2).is_some_and(|b| b.is_ascii_whitespace())
+        {
+            Some(Format::Pfm)
+        } else if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+            Some(Format::Png)
+        } else if bytes.starts_with(&[0xff, 0xd8, 0xff]) {
+            Some(Format::Jpeg)
+        } else {
+            None
+        }
+    }
+
+    /// Recognises a format from a file name's extension (case-insensitive).
+    pub fn from_extension(path: &Path) -> Option<Format> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "exr" => Some(Format::Exr),
+            "hdr" | "pic" | "rgbe" => Some(Format::Rgbe),
+            "pfm" => Some(Format::Pfm),
+            "png" => Some(Format::Png),
+            "jpg" | "jpeg" => Some(Format::Jpeg),
+            _ => None,
+        }
+    }
+
+    /// Magic bytes first, then the extension of `name`.
+    pub fn detect(bytes: &[u8], name: &Path) -> Option<Format> {
+        Format::sniff(bytes).or_else(|| Format::from_extension(name))
+    }
+
+    /// Whether the format stores linear floating-point radiance.
+    pub fn is_hdr(self) -> bool {
+        matches!(self, Format::Exr | Format::Rgbe | Format::Pfm)
+    }
+
+    /// Human-readable name used in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Exr => "OpenEXR",
+            Format::Rgbe => "Radiance RGBE",
+            Format::Pfm => "PFM",
+            Format::Png => "PNG",
+            Format::Jpeg => "JPEG",
+        }
+    }
+}
+
+/// Reads an HDR image (EXR, Radiance `.hdr` or PFM) with default [`Limits`].
 pub fn read_hdr(path: &Path) -> Result<HdrImage> {
-    use exr::prelude::*;
-    let img = read_first_rgba_layer_from_file(
-        path,
-        |res, _| HdrImage::new(res.width(), res.height()),
-        |img: &mut HdrImage, pos, (r, g, b, _a): (f32, f32, f32, f32)| img.set(pos.x(), pos.y(), [r, g, b]),
-    )
-    .map_err(|e| LpError::format(path, e.to_string()))?;
-    Ok(img.layer_data.channel_data.pixels)
+    read_hdr_with(path, &Limits::default())
 }
 
-/// Writes an HDR image atomically, choosing the format by extension.
-pub fn write_hdr(path: &Path, img: &HdrImage) -> Result<()> {
-    use exr::prelude::*;
-    let tmp = crate::fsutil::temp_path(path);
-    write_rgb_file(&tmp, img.width(), img.height(), |x, y| {
-        let p = img.get(x, y);
-        (p[0], p[1], p[2])
-    })
-    .map_err(|e| LpError::format(path, e.to_string()))?;
-    std::fs::rename(&tmp, path).map_err(|e| LpError::io(path, e))
+/// Reads an HDR image, rejecting files that declare more than `limits` allow.
+pub fn read_hdr_with(path: &Path, limits: &Limits) -> Result<HdrImage> {
+    let bytes = crate::fsutil::read(path)?;
+    decode_hdr(&bytes, path, limits)
 }
 
-/// Reads an 8-bit RGB image (PNG or JPEG).
+/// Decodes an HDR image held in memory; `name` is used for format fallback by
+/// extension and in error messages.
+pub fn decode_hdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
+    match detect_or_err(bytes, name)? {
+        Format::Exr => exr::decode(bytes, name, limits),
+        Format::Rgbe => rgbe::decode(bytes, name, limits),
+        Format::Pfm => pfm::decode(bytes, name, limits),
+        f @ (Format::Png | Format::Jpeg) => Err(Error::format(
+            name,
+            format!(
+                "is an 8-bit {} image, not HDR; read it with read_sdr and convert it with \
+                 sdr_to_linear and the camera response",
+                f.name()
+            ),
+        )),
+    }
+}
+
+/// Reads an 8-bit image (PNG or JPEG) as RGB with default [`Limits`].
 pub fn read_sdr(path: &Path) -> Result<SdrImage> {
-    let img = image::open(path).map_err(|e| LpError::format(path, e.to_string()))?.to_rgb8();
-    let (w, h) = img.dimensions();
-    SdrImage::from_vec(w as usize, h as usize, img.into_raw())
+    read_sdr_with(path, &Limits::default())
 }
 
-/// Writes an 8-bit RGB image atomically (PNG or JPEG by extension).
+/// Reads an 8-bit image as RGB, rejecting files that declare more than `limits`.
+pub fn read_sdr_with(path: &Path, limits: &Limits) -> Result<SdrImage> {
+    let bytes = crate::fsutil::read(path)?;
+    decode_sdr(&bytes, path, limits)
+}
+
+/// Decodes an 8-bit PNG or JPEG held in memory (gray and alpha become RGB).
+pub fn decode_sdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<SdrImage> {
+    match detect_or_err(bytes, name)? {
+        f @ (Format::Png | Format::Jpeg) => ldr::decode(bytes, name, f, limits),
+        f => Err(Error::format(
+            name,
+            format!(
+                "is an HDR {} image, not 8-bit; read it with read_hdr",
+                f.name()
+            ),
+        )),
+    }
+}
+
+/// Writes an HDR image atomically; `.exr` (float32, ZIP), `.hdr`/`.pic` (RLE RGBE)
+/// or `.pfm` (little-endian RGB) by extension.
+pub fn write_hdr(path: &Path, img: &HdrImage) -> Result<()> {
+    match Format::from_extension(path) {
+        Some(Format::Exr) => exr::write(path, img, &ExrWriteOptions::default()),
+        Some(Format::Rgbe) => rgbe::write(path, img),
+        Some(Format::Pfm) => pfm::write(path, img),
+        Some(f @ (Format::Png | Format::Jpeg)) => Err(Error::Invalid(format!(
+            "{}: {} is an 8-bit format; write HDR images as .exr, .hdr or .pfm \
+             (or tone map with linear_to_sdr and use write_sdr)",
+            path.display(),
+            f.name()
+        ))),
+        None => Err(unknown_extension(path, ".exr, .hdr, .pic or .pfm")),
+    }
+}
+
+/// Writes an 8-bit RGB image atomically: `.png`, or `.jpg`/`.jpeg` (quality 95).
 pub fn write_sdr(path: &Path, img: &SdrImage) -> Result<()> {
-    let buf = image::RgbImage::from_raw(img.width() as u32, img.height() as u32, img.data().to_vec())
-        .ok_or_else(|| LpError::Invalid("SDR buffer size".into()))?;
-    let fmt = image::ImageFormat::from_path(path).map_err(|e| LpError::format(path, e.to_string()))?;
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    buf.write_to(&mut bytes, fmt).map_err(|e| LpError::format(path, e.to_string()))?;
-    crate::fsutil::write_atomic(path, bytes.get_ref())
+    match Format::from_extension(path) {
+        Some(Format::Png) => ldr::write_png(path, img),
+        Some(Format::Jpeg) => ldr::write_jpeg(path, img, ldr::DEFAULT_JPEG_QUALITY),
+        Some(f) => Err(Error::Invalid(format!(
+            "{}: {} is an HDR format; write 8-bit images as .png or .jpg \
+             (or use write_hdr)",
+            path.display(),
+            f.name()
+        ))),
+        None => Err(unknown_extension(path, ".png, .jpg or .jpeg")),
+    }
+}
+
+fn unknown_extension(path: &Path, allowed: &str) -> Error {
+    Error::Invalid(format!(
+        "{}: unknown image extension {:?}; expected {}",
+        path.display(),
+        path.extension()
+            .map(|e| e.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        allowed
+    ))
+}
+
+fn detect_or_err(bytes: &[u8], name: &Path) -> Result<Format> {
+    Format::detect(bytes, name).ok_or_else(|| {
+        let head: Vec<String> = bytes.iter().take(8).map(|b| format!("{b:02x}")).collect();
+        Error::format(
+            name,
+            format!(
+                "unrecognised image format (first bytes [{}]); expected OpenEXR, Radiance \
+                 RGBE, PFM, PNG or JPEG",
+                head.join(" ")
+            ),
+        )
+    })
+}
+
+/// Validates a declared image size: non-zero, within `limits`, and addressable
+/// as `3 * width * height` samples. Returns it as `usize`.
+pub(crate) fn check_dims(
+    name: &Path,
+    width: u64,
+    height: u64,
+    limits: &Limits,
+) -> Result<(usize, usize)> {
+    if width == 0 || height == 0 {
+        return Err(Error::format(
+            name,
+            format!("declares an empty {width}x{height} image"),
+        ));
+    }
+    let too_large = || Error::TooLarge {
+        path: name.to_path_buf(),
+        width,
+        height,
+        limit: limits.max_pixels,
+    };
+    let pixels = width.checked_mul(height).ok_or_else(too_large)?;
+    if pixels > limits.max_pixels {
+        return Err(too_large());
+    }
+    let w = usize::try_from(width).map_err(|_| too_large())?;
+    let h = usize::try_from(height).map_err(|_| too_large())?;
+    w.checked_mul(h)
+        .and_then(|p| p.checked_mul(3 * std::mem::size_of::<f32>()))
+        .ok_or_else(too_large)?;
+    Ok((w, h))
+}
+
+/// Refuses to write NaN or infinite samples, naming how many there are.
+pub(crate) fn check_finite(path: &Path, img: &HdrImage) -> Result<()> {
+    let bad = img.data().iter().filter(|v| !v.is_finite()).count();
+    if bad > 0 {
+        return Err(Error::Invalid(format!(
+            "{}: image has {bad} NaN or infinite samples; refusing to write them \
+             (repair them first, e.g. with HdrImage::repair_invalid)",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Refuses to write an image without pixels.
+pub(crate) fn check_nonempty(path: &Path, width: usize, height: usize) -> Result<()> {
+    if width == 0 || height == 0 {
+        return Err(Error::Invalid(format!(
+            "{}: cannot write an empty {width}x{height} image",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Runs a third-party decoder, turning a panic inside it into a format error.
+pub(crate) fn guard_panic<T>(name: &Path, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(_) => Err(Error::format(
+            name,
+            format!("{what} decoder failed on malformed data"),
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sniff_prefers_magic_over_extension() {
+        let p = Path::new("x.png");
+        assert_eq!(Format::detect(b"#?RADIANCE\n", p), Some(Format::Rgbe));
+        assert_eq!(Format::detect(b"PF\n1 1\n-1\n", p), Some(Format::Pfm));
+        assert_eq!(
+            Format::detect(&[0x76, 0x2f, 0x31, 0x01], p),
+            Some(Format::Exr)
+        );
+        assert_eq!(Format::detect(b"", p), Some(Format::Png));
+        assert_eq!(Format::detect(b"", Path::new("x.JPEG")), Some(Format::Jpeg));
+        assert_eq!(Format::detect(b"junk", Path::new("x.txt")), None);
+    }
+
+    #[test]
+    fn check_dims_rejects_zero_and_huge() {
+        let n = Path::new("a.hdr");
+        let l = Limits::default();
+        assert!(matches!(check_dims(n, 0, 5, &l), Err(Error::Format { .. })));
+        assert!(matches!(
+            check_dims(n, 100_000, 100_000, &l),
+            Err(Error::TooLarge { .. })
+        ));
+        assert!(matches!(
+            check_dims(n, u64::MAX, u64::MAX, &l),
+            Err(Error::TooLarge { .. })
+        ));
+        assert_eq!(check_dims(n, 4, 2, &l).unwrap(), (4, 2));
+    }
+
+    #[test]
+    fn unknown_extensions_are_clear_errors() {
+        let img = HdrImage::new(2, 2);
+        let e = write_hdr(Path::new("/nonexistent/x.tiff"), &img).unwrap_err();
+        assert!(e.to_string().contains("x.tiff") && e.to_string().contains("tiff"));
+        let e = write_sdr(Path::new("/nonexistent/y.bmp"), &SdrImage::new(1, 1)).unwrap_err();
+        assert!(e.to_string().contains("y.bmp"));
+    }
 }

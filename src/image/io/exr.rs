@@ -1,0 +1,340 @@
+//! OpenEXR via the `exr` crate.
+//!
+//! Reading takes the first layer with `R`, `G`, `B` channels (any of half, float
+//! or u32; alpha and other channels are dropped), or else the first with a `Y`
+//! (luminance) channel, replicated to RGB. The header is parsed and the data
+//! window checked against [`Limits`] before any pixel is decoded. Decoding is
+//! single-threaded so that a fault in the decoder stays catchable.
+//!
+//! Writing stores float32 RGB with lossless ZIP compression unless
+//! [`ExrWriteOptions`] ask for half floats.
+
+use super::{check_dims, check_finite, check_nonempty, guard_panic, Limits};
+use crate::error::{Error, Result};
+use crate::image::HdrImage;
+use ::exr::prelude::traits::*;
+use ::exr::prelude::{f16, Vec2};
+use std::io::Cursor;
+use std::path::Path;
+
+/// Largest finite half-float value.
+pub const HALF_MAX: f32 = 65504.0;
+
+/// What to do with samples beyond [`HALF_MAX`] when writing half floats.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Overflow {
+    /// Fail, naming the file, the largest value and how many samples overflow.
+    #[default]
+    Error,
+    /// Clamp to ±65504 (an explicit, lossy choice).
+    Clamp,
+}
+
+/// How to write an EXR file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ExrWriteOptions {
+    /// Store 16-bit half floats instead of 32-bit floats.
+    pub half: bool,
+    /// Policy for values that do not fit in a half float (only with `half`).
+    pub on_overflow: Overflow,
+}
+
+/// Which channels of the chosen layer become RGB.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Rgb,
+    Luminance,
+}
+
+/// Pixel buffer that ignores out-of-range writes instead of panicking.
+struct Pixels {
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+impl Pixels {
+    fn new(size: Vec2<usize>, limits: &Limits) -> Self {
+        let (w, h) = (size.width(), size.height());
+        let fits = (w as u64)
+            .checked_mul(h as u64)
+            .is_some_and(|p| p <= limits.max_pixels);
+        if !fits {
+            // Unreachable after the header check; never allocate regardless.
+            return Pixels {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+            };
+        }
+        Pixels {
+            width: w,
+            height: h,
+            data: vec![0.0; w * h * 3],
+        }
+    }
+
+    #[inline]
+    fn set(&mut self, pos: Vec2<usize>, v: [f32; 3]) {
+        let (x, y) = (pos.x(), pos.y());
+        if x < self.width && y < self.height {
+            let i = 3 * (y * self.width + x);
+            if let Some(d) = self.data.get_mut(i..i + 3) {
+                d.copy_from_slice(&v);
+            }
+        }
+    }
+}
+
+/// Decodes an OpenEXR file held in memory.
+pub fn decode(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
+    guard_panic(name, "OpenEXR", || decode_inner(bytes, name, limits))
+}
+
+fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
+    let meta = ::exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| exr_error(name, "bad header", e))?;
+
+    let channel_names = |h: &::exr::meta::header::Header| -> Vec<String> {
+        h.channels.list.iter().map(|c| c.name.to_string()).collect()
+    };
+    let has = |names: &[String], n: &str| names.iter().any(|c| c == n);
+    for kind in [Kind::Rgb, Kind::Luminance] {
+        let Some(h) = meta.headers.iter().find(|h| {
+            let names = channel_names(h);
+            !h.deep
+                && match kind {
+                    Kind::Rgb => has(&names, "R") && has(&names, "G") && has(&names, "B"),
+                    Kind::Luminance => has(&names, "Y"),
+                }
+        }) else {
+            continue;
+        };
+        let names = channel_names(h);
+        if kind == Kind::Luminance && (has(&names, "RY") || has(&names, "BY")) {
+            return Err(Error::format(
+                name,
+                "luminance/chroma (Y, RY, BY) OpenEXR is not supported; convert it to RGB",
+            ));
+        }
+        let size = h.layer_size;
+        check_dims(name, size.width() as u64, size.height() as u64, limits)?;
+        let (w, h) = (size.width(), size.height());
+        let img = match kind {
+            Kind::Rgb => read_rgb(bytes, name, limits)?,
+            Kind::Luminance => read_luminance(bytes, name, limits)?,
+        };
+        if img.width != w || img.height != h || img.data.len() != w * h * 3 {
+            return Err(Error::format(
+                name,
+                format!(
+                    "OpenEXR layer decoded as {}x{}, header declares {w}x{h}",
+                    img.width, img.height
+                ),
+            ));
+        }
+        return HdrImage::from_vec(w, h, img.data);
+    }
+    let layers: Vec<String> = meta
+        .headers
+        .iter()
+        .map(|h| format!("[{}]", channel_names(h).join(", ")))
+        .collect();
+    Err(Error::format(
+        name,
+        format!(
+            "no OpenEXR layer has R, G, B or Y channels (found channels {})",
+            if layers.is_empty() {
+                "none".to_string()
+            } else {
+                layers.join(" ")
+            }
+        ),
+    ))
+}
+
+fn read_rgb(bytes: &[u8], name: &Path, limits: &Limits) -> Result<Pixels> {
+    let image = ::exr::image::read::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgb_channels(
+            |size, _| Pixels::new(size, limits),
+            |px: &mut Pixels, pos, (r, g, b): (f32, f32, f32)| px.set(pos, [r, g, b]),
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .non_parallel()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| exr_error(name, "cannot decode", e))?;
+    Ok(image.layer_data.channel_data.pixels)
+}
+
+fn read_luminance(bytes: &[u8], name: &Path, limits: &Limits) -> Result<Pixels> {
+    let image = ::exr::image::read::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .specific_channels()
+        .required("Y")
+        .collect_pixels(
+            |size, _| Pixels::new(size, limits),
+            |px: &mut Pixels, pos, (y,): (f32,)| px.set(pos, [y, y, y]),
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .non_parallel()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| exr_error(name, "cannot decode", e))?;
+    Ok(image.layer_data.channel_data.pixels)
+}
+
+fn exr_error(name: &Path, what: &str, e: ::exr::error::Error) -> Error {
+    let detail = match e {
+        ::exr::error::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            "file is truncated".to_string()
+        }
+        other => {
+            let msg = other.to_string();
+            if msg.contains("missing bytes") {
+                format!("truncated or corrupt ({msg})")
+            } else {
+                msg
+            }
+        }
+    };
+    Error::format(name, format!("OpenEXR {what}: {detail}"))
+}
+
+/// Encodes an image as OpenEXR bytes (`name` is used in error messages).
+/// Refuses NaN/Inf samples and, for half output, values above 65504 unless
+/// [`Overflow::Clamp`] is chosen.
+pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec<u8>> {
+    let (w, h) = (img.width(), img.height());
+    check_nonempty(name, w, h)?;
+    check_finite(name, img)?;
+    let encoding = ::exr::image::Encoding {
+        compression: ::exr::compression::Compression::ZIP16,
+        blocks: ::exr::image::Blocks::ScanLines,
+        line_order: ::exr::meta::attribute::LineOrder::Increasing,
+    };
+    let attributes = ::exr::meta::header::LayerAttributes::default();
+    let mut out = Cursor::new(Vec::new());
+    let result = if opts.half {
+        let (count, max) = img
+            .data()
+            .iter()
+            .filter(|v| v.abs() > HALF_MAX)
+            .fold((0usize, 0f32), |(n, m), v| (n + 1, m.max(v.abs())));
+        if count > 0 && opts.on_overflow == Overflow::Error {
+            return Err(Error::Invalid(format!(
+                "{}: {count} samples exceed the half-float maximum {HALF_MAX} (largest \
+                 magnitude {max}); write float32 or choose Overflow::Clamp",
+                name.display()
+            )));
+        }
+        let half = |v: f32| f16::from_f32(v.clamp(-HALF_MAX, HALF_MAX));
+        let channels = ::exr::image::SpecificChannels::rgb(|pos: Vec2<usize>| {
+            let p = img.get(pos.x(), pos.y());
+            (half(p[0]), half(p[1]), half(p[2]))
+        });
+        ::exr::image::Image::from_layer(::exr::image::Layer::new(
+            (w, h),
+            attributes,
+            encoding,
+            channels,
+        ))
+        .write()
+        .to_buffered(&mut out)
+    } else {
+        let channels = ::exr::image::SpecificChannels::rgb(|pos: Vec2<usize>| {
+            let p = img.get(pos.x(), pos.y());
+            (p[0], p[1], p[2])
+        });
+        ::exr::image::Image::from_layer(::exr::image::Layer::new(
+            (w, h),
+            attributes,
+            encoding,
+            channels,
+        ))
+        .write()
+        .to_buffered(&mut out)
+    };
+    result
+        .map_err(|e| Error::Invalid(format!("{}: cannot encode OpenEXR: {e}", name.display())))?;
+    Ok(out.into_inner())
+}
+
+/// Writes an OpenEXR file atomically with the given options.
+pub fn write(path: &Path, img: &HdrImage, opts: &ExrWriteOptions) -> Result<()> {
+    let bytes = encode(img, path, opts)?;
+    crate::fsutil::write_atomic(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> HdrImage {
+        HdrImage::from_fn(5, 3, |x, y| {
+            [x as f32 * 1.5, y as f32 + 0.25, 1e-3 * (x + y) as f32]
+        })
+    }
+
+    #[test]
+    fn float_round_trip_is_exact() {
+        let n = Path::new("f.exr");
+        let b = encode(&sample(), n, &ExrWriteOptions::default()).unwrap();
+        assert_eq!(decode(&b, n, &Limits::default()).unwrap(), sample());
+    }
+
+    #[test]
+    fn half_overflow_errors_or_clamps() {
+        let n = Path::new("big.exr");
+        let mut img = sample();
+        img.set(1, 1, [1e5, 2e5, 1.0]);
+        let opts = ExrWriteOptions {
+            half: true,
+            on_overflow: Overflow::Error,
+        };
+        let e = encode(&img, n, &opts).unwrap_err().to_string();
+        assert!(
+            e.contains("big.exr") && e.contains("200000") && e.contains("2 samples"),
+            "{e}"
+        );
+        let opts = ExrWriteOptions {
+            half: true,
+            on_overflow: Overflow::Clamp,
+        };
+        let back = decode(&encode(&img, n, &opts).unwrap(), n, &Limits::default()).unwrap();
+        assert_eq!(back.get(1, 1), [HALF_MAX, HALF_MAX, 1.0]);
+    }
+
+    #[test]
+    fn non_finite_samples_are_refused() {
+        let mut img = sample();
+        img.set(0, 0, [f32::NAN, f32::INFINITY, 0.0]);
+        let e = encode(&img, Path::new("nan.exr"), &ExrWriteOptions::default()).unwrap_err();
+        assert!(
+            e.to_string().contains("nan.exr") && e.to_string().contains("2 NaN"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn header_size_is_checked_before_decoding() {
+        let n = Path::new("lim.exr");
+        let b = encode(&sample(), n, &ExrWriteOptions::default()).unwrap();
+        let e = decode(&b, n, &Limits { max_pixels: 10 }).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                Error::TooLarge {
+                    width: 5,
+                    height: 3,
+                    limit: 10,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+    }
+}
