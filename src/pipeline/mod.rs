@@ -3,6 +3,7 @@
 //! an interrupted run without redoing finished frames.
 
 pub mod bench;
+pub mod demo;
 pub mod evaluate;
 
 use crate::error::{Error, Result};
@@ -102,10 +103,7 @@ pub fn resize_sdr(sdr: &SdrImage, w: usize, h: usize) -> SdrImage {
 /// Radiance of an SDR frame: `response⁻¹(code / 255) / gain` (clipped pixels stay at
 /// the white point's radiance).
 pub fn linearize(sdr: &SdrImage, scene: &Scene) -> HdrImage {
-    let lut = scene.response.decode_lut();
-    let g = 1.0 / scene.path_gain;
-    let data = sdr.data().iter().map(|&c| lut[c as usize] * g).collect();
-    HdrImage::from_vec(sdr.width(), sdr.height(), data).expect("size matches")
+    io::sdr_to_linear(sdr, &scene.response, scene.path_gain)
 }
 
 /// Reads a probe's HDR panorama, repairs invalid samples and resamples it.
