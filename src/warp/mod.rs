@@ -527,6 +527,10 @@ fn match_face(
                 };
                 best = Some((inliers, report, map));
             }
+            // Candidates come best-aligned first: a clear winner ends the search.
+            if inliers >= 2 * p.min_inliers && inliers * 2 >= src.len() {
+                break;
+            }
         }
     }
     let (report, map) = match best {
