@@ -108,6 +108,21 @@ enum Cmd {
         #[command(flatten)]
         warp: WarpOpts,
     },
+    /// Synthesize a small scene, run the warp method on it and print the scores.
+    Demo {
+        /// Folder for the scene and the predictions.
+        #[arg(long, default_value = "lumiprobe-demo")]
+        out: PathBuf,
+        /// Panorama width of the synthetic scene.
+        #[arg(long, default_value_t = 512)]
+        width: usize,
+        /// Frames along the walk.
+        #[arg(long, default_value_t = 8)]
+        frames: usize,
+        /// Seed of the synthetic scene.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Time the method per frame (probe features cached) with a stage breakdown.
     Bench {
         /// Scene folder.
@@ -310,12 +325,59 @@ fn real_main(cli: Cli) -> Result<()> {
                 );
             }
         }
-        Cmd::Bench { scene, size, bench_threads, repeats, json, warp } => {
+        Cmd::Demo {
+            out,
+            width,
+            frames,
+            seed,
+        } => {
+            if !(64..=4096).contains(&width) {
+                return Err(Error::Invalid(format!(
+                    "demo width {width} is outside 64..4096"
+                )));
+            }
+            let synth = lumiprobe::synth::SynthParams {
+                width,
+                n_frames: frames.max(1),
+                seed,
+                name: "demo".into(),
+                ..Default::default()
+            };
+            let ev = lumiprobe::pipeline::demo::demo(
+                &out,
+                &synth,
+                &RunParams::default(),
+                &progress_printer(cli.quiet, "frames"),
+            )?;
+            println!(
+                "demo scene ({} frames, {}x{}) in {}",
+                ev.frames.len(),
+                width,
+                width / 2,
+                out.display()
+            );
+            print!("{}", ev.table.to_text());
+        }
+        Cmd::Bench {
+            scene,
+            size,
+            bench_threads,
+            repeats,
+            json,
+            warp,
+        } => {
             let scene = Scene::load(&scene)?;
-            let params = RunParams { method: Method::Warp, size, warp: warp.params() };
+            let params = RunParams {
+                method: Method::Warp,
+                size,
+                warp: warp.params(),
+            };
             let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&r).map_err(|e| Error::Invalid(e.to_string()))?);
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&r).map_err(|e| Error::Invalid(e.to_string()))?
+                );
             } else {
                 println!(
                     "{} {}x{} warp, {} thread(s), {} frames x {}: mean {:.1} ms/frame (median {:.1}); tonemap {:.1}, features {:.1}, matching {:.1}, warp+stitch {:.1} ms; probe preparation {:.1} ms once per probe; peak RSS {}",
@@ -343,15 +405,22 @@ fn real_main(cli: Cli) -> Result<()> {
                 .map(|p| match p.split_once('=') {
                     Some((l, d)) => (l.to_string(), PathBuf::from(d)),
                     None => {
-                        let label = report_method(Path::new(p)).unwrap_or_else(|| "prediction".into());
+                        let label =
+                            report_method(Path::new(p)).unwrap_or_else(|| "prediction".into());
                         (label, PathBuf::from(p))
                     }
                 })
                 .collect();
-            let refs: Vec<(String, &Path)> = labelled.iter().map(|(l, d)| (l.clone(), d.as_path())).collect();
+            let refs: Vec<(String, &Path)> = labelled
+                .iter()
+                .map(|(l, d)| (l.clone(), d.as_path()))
+                .collect();
             let ev = lumiprobe::pipeline::evaluate::evaluate(&scene, &refs)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?);
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?
+                );
             } else {
                 println!("scene {}", ev.scene);
                 print!("{}", ev.table.to_text());
@@ -361,7 +430,10 @@ fn real_main(cli: Cli) -> Result<()> {
             let pa = io::read_hdr(&a)?;
             let pb = io::read_hdr(&b)?;
             let m = lumiprobe::eval::compare_resized(&pa, &pb)?;
-            println!("{}", serde_json::to_string_pretty(&m).map_err(|e| Error::Invalid(e.to_string()))?);
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&m).map_err(|e| Error::Invalid(e.to_string()))?
+            );
         }
         Cmd::Convert { input, output } => {
             let img = io::read_hdr(&input)?;

@@ -43,8 +43,16 @@ pub fn peak_rss_mib() -> Option<f64> {
 
 /// Times the warp method on every frame of `scene` `repeats` times, single pass of
 /// warm-up first so that probe features are cached, inside a pool of `threads`.
-pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, repeats: usize) -> Result<BenchReport> {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads.max(1)).build().map_err(|e| Error::Invalid(e.to_string()))?;
+pub fn bench(
+    scene: &crate::scene::Scene,
+    params: &RunParams,
+    threads: usize,
+    repeats: usize,
+) -> Result<BenchReport> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()
+        .map_err(|e| Error::Invalid(e.to_string()))?;
     crate::cv::set_num_threads(1);
     pool.install(|| {
         let mut probes: Vec<Option<Arc<PreparedProbe>>> = vec![None; scene.probes.len()];
@@ -56,9 +64,16 @@ pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, re
             let lin = linearize(&sdr, scene);
             let pi = scene.nearest_probe(f.pose.position);
             if probes[pi].is_none() {
-                let (img, _) = load_probe(scene, pi, params.size.or(Some((sdr.width(), sdr.height()))))?;
+                let (img, _) =
+                    load_probe(scene, pi, params.size.or(Some((sdr.width(), sdr.height()))))?;
                 let t = Instant::now();
-                probes[pi] = Some(Arc::new(PreparedProbe::new(Arc::new(img), scene.probes[pi].pose, params.warp.probe_tonemap, &scene.response, scene.path_gain)));
+                probes[pi] = Some(Arc::new(PreparedProbe::new(
+                    Arc::new(img),
+                    scene.probes[pi].pose,
+                    params.warp.probe_tonemap,
+                    &scene.response,
+                    scene.path_gain,
+                )));
                 prep_ms += t.elapsed().as_secs_f64() * 1e3;
                 prepared += 1;
             }
@@ -68,7 +83,15 @@ pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, re
         for (f, sdr, lin, pi) in &inputs {
             let t = Instant::now();
             let p = probes[*pi].as_ref().expect("prepared");
-            warp::warp_frame(sdr, lin, &f.pose, p, &params.warp, sdr.width(), sdr.height())?;
+            warp::warp_frame(
+                sdr,
+                lin,
+                &f.pose,
+                p,
+                &params.warp,
+                sdr.width(),
+                sdr.height(),
+            )?;
             let _ = t;
         }
         let mut times = Vec::new();
@@ -77,7 +100,15 @@ pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, re
             for (f, sdr, lin, pi) in &inputs {
                 let p = probes[*pi].as_ref().expect("prepared");
                 let t = Instant::now();
-                let (_, rep) = warp::warp_frame(sdr, lin, &f.pose, p, &params.warp, sdr.width(), sdr.height())?;
+                let (_, rep) = warp::warp_frame(
+                    sdr,
+                    lin,
+                    &f.pose,
+                    p,
+                    &params.warp,
+                    sdr.width(),
+                    sdr.height(),
+                )?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 stages.tonemap_ms += rep.timings.tonemap_ms;
                 stages.features_ms += rep.timings.features_ms;
@@ -94,7 +125,10 @@ pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, re
         stages.probe_features_ms /= n;
         let mut sorted = times.clone();
         sorted.sort_by(f64::total_cmp);
-        let size = inputs.first().map(|(_, s, _, _)| (s.width(), s.height())).unwrap_or((0, 0));
+        let size = inputs
+            .first()
+            .map(|(_, s, _, _)| (s.width(), s.height()))
+            .unwrap_or((0, 0));
         Ok(BenchReport {
             scene: scene.name.clone(),
             size,
@@ -104,7 +138,11 @@ pub fn bench(scene: &crate::scene::Scene, params: &RunParams, threads: usize, re
             mean_ms: times.iter().sum::<f64>() / n,
             median_ms: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
             stages,
-            probe_prepare_ms: if prepared > 0 { prep_ms / prepared as f64 } else { 0.0 },
+            probe_prepare_ms: if prepared > 0 {
+                prep_ms / prepared as f64
+            } else {
+                0.0
+            },
             peak_rss_mib: peak_rss_mib(),
         })
     })

@@ -40,11 +40,21 @@ pub struct SceneEval {
 }
 
 /// The nearest-probe baseline for a frame at the ground truth's size.
-pub fn nearest_probe_baseline(scene: &Scene, frame_index: usize, w: usize, h: usize) -> Result<HdrImage> {
+pub fn nearest_probe_baseline(
+    scene: &Scene,
+    frame_index: usize,
+    w: usize,
+    h: usize,
+) -> Result<HdrImage> {
     let frame = &scene.frames[frame_index];
     let pi = scene.nearest_probe(frame.pose.position);
     let (probe, _) = load_probe(scene, pi, None)?;
-    Ok(rotate(&probe, frame.pose.from_other(&scene.probes[pi].pose), w, h))
+    Ok(rotate(
+        &probe,
+        frame.pose.from_other(&scene.probes[pi].pose),
+        w,
+        h,
+    ))
 }
 
 /// Scores each `(label, prediction folder)` and both baselines on every frame that
@@ -55,13 +65,19 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
         .into_par_iter()
         .map(|i| {
             let frame = &scene.frames[i];
-            let Some(gt_path) = &frame.ground_truth else { return Ok(None) };
+            let Some(gt_path) = &frame.ground_truth else {
+                return Ok(None);
+            };
             let gt = io::read_hdr(gt_path)?;
             let mut scores = Vec::new();
             for (label, dir) in preds {
                 let p = prediction_path(dir, frame);
                 if !p.exists() {
-                    return Err(Error::Invalid(format!("{}: prediction for frame {} is missing (run `lumiprobe run` first)", p.display(), frame.id)));
+                    return Err(Error::Invalid(format!(
+                        "{}: prediction for frame {} is missing (run `lumiprobe run` first)",
+                        p.display(),
+                        frame.id
+                    )));
                 }
                 let pred = io::read_hdr(&p)?;
                 scores.push((label.clone(), compare_resized(&pred, &gt)?));
@@ -71,7 +87,11 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
             let sdr = linearize(&load_frame(frame, None)?, scene);
             scores.push((BASELINE_SDR.to_string(), compare_resized(&sdr, &gt)?));
             let pi = scene.nearest_probe(frame.pose.position);
-            Ok(Some(FrameScores { id: frame.id.clone(), probe_distance_m: scene.probes[pi].pose.position.distance(frame.pose.position), scores }))
+            Ok(Some(FrameScores {
+                id: frame.id.clone(),
+                probe_distance_m: scene.probes[pi].pose.position.distance(frame.pose.position),
+                scores,
+            }))
         })
         .collect();
     let mut frames = Vec::new();
@@ -81,12 +101,19 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
         }
     }
     if frames.is_empty() {
-        return Err(Error::Invalid(format!("scene {} has no frame with ground truth to score", scene.name)));
+        return Err(Error::Invalid(format!(
+            "scene {} has no frame with ground truth to score",
+            scene.name
+        )));
     }
     let mut table = MetricsTable::new();
     for (k, (label, _)) in frames[0].scores.iter().enumerate() {
         let col: Vec<Metrics> = frames.iter().map(|f| f.scores[k].1).collect();
         table.push(label.clone(), &col);
     }
-    Ok(SceneEval { scene: scene.name.clone(), table, frames })
+    Ok(SceneEval {
+        scene: scene.name.clone(),
+        table,
+        frames,
+    })
 }
