@@ -770,17 +770,20 @@ mod tests {
                 assert!(err < 0.02, "{:?}: corner off by {err} face units", f.face);
             }
         }
-        // And the warped HDR matches the truth, lamp included (no clamping).
-        let mut worst = 0.0f32;
+        // And the warped HDR matches the truth, lamp included (no clamping): 99% of
+        // pixels within 25% (only lamp and block edges, a pixel off, may exceed it).
+        let mut errs = Vec::new();
         for y in 40..216 {
             for x in 0..w {
                 let (a, b) = (out.get(x, y), truth.get(x, y));
-                worst = worst.max((a[1] - b[1]).abs() / b[1].max(0.2));
+                errs.push((a[1] - b[1]).abs() / b[1].max(0.2));
             }
         }
+        errs.sort_by(f32::total_cmp);
+        let p99 = errs[errs.len() * 99 / 100];
         let max_out = out.data().iter().cloned().fold(0.0f32, f32::max);
         assert!(max_out > 150.0, "lamp lost: max {max_out}");
-        assert!(worst < 0.6, "worst relative error {worst}");
+        assert!(p99 < 0.25, "99th percentile relative error {p99}");
         let mean_err: f32 = out
             .data()
             .iter()
