@@ -15,6 +15,7 @@ namespace lumiprobe {
 
 struct MatchIndex::Impl {
   bool binary = false;
+  int checks = 32;
   int count = 0;
   cv::Mat train;                          // descriptors (rows = features)
   std::unique_ptr<cv::flann::Index> kd;   // float descriptors
@@ -109,12 +110,14 @@ Features detect_features(rust::Slice<const uint8_t> gray, int32_t width,
   return out;
 }
 
-std::unique_ptr<MatchIndex> build_index(const Features &train) {
+std::unique_ptr<MatchIndex> build_index(const Features &train,
+                                        int32_t flann_checks) {
   auto impl = std::make_unique<MatchIndex::Impl>();
+  impl->checks = flann_checks;
   impl->binary = train.binary;
   impl->count = train.count;
   impl->train = descriptors_of(train).clone();
-  if (!impl->binary && impl->count >= 2) {
+  if (!impl->binary && impl->count >= 2 && flann_checks > 0) {
     // FLANN's randomised k-d trees draw from the C library's global generator:
     // seed it under a lock so every index (and so every match) is reproducible.
     static std::mutex seed_lock;
@@ -136,8 +139,8 @@ rust::Vec<int32_t> match_ratio(const MatchIndex &index, const Features &query,
     throw std::invalid_argument(
         "query and index descriptors differ in kind or length");
   cv::Mat q = descriptors_of(query);
-  if (ix.binary) {
-    cv::BFMatcher bf(cv::NORM_HAMMING);
+  if (ix.binary || !ix.kd) {
+    cv::BFMatcher bf(ix.binary ? cv::NORM_HAMMING : cv::NORM_L2);
     std::vector<std::vector<cv::DMatch>> knn;
     bf.knnMatch(q, ix.train, knn, 2);
     for (const auto &m : knn) {
@@ -151,7 +154,7 @@ rust::Vec<int32_t> match_ratio(const MatchIndex &index, const Features &query,
   cv::Mat indices, dists;
   {
     std::lock_guard<std::mutex> guard(index.lock());
-    ix.kd->knnSearch(q, indices, dists, 2, cv::flann::SearchParams(64));
+    ix.kd->knnSearch(q, indices, dists, 2, cv::flann::SearchParams(ix.checks));
   }
   // dists are squared L2 distances: compare squared ratio.
   const float r2 = ratio * ratio;

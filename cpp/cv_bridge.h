@@ -35,7 +35,8 @@ Features detect_features(rust::Slice<const uint8_t> gray, int32_t width,
                          int32_t max_features, double threshold,
                          float blur_sigma);
 
-std::unique_ptr<MatchIndex> build_index(const Features &train);
+std::unique_ptr<MatchIndex> build_index(const Features &train,
+                                        int32_t flann_checks);
 
 rust::Vec<int32_t> match_ratio(const MatchIndex &index, const Features &query,
                                float ratio);

@@ -49,7 +49,7 @@ mod ffi {
             threshold: f64,
             blur_sigma: f32,
         ) -> Result<Features>;
-        fn build_index(train: &Features) -> Result<UniquePtr<MatchIndex>>;
+        fn build_index(train: &Features, flann_checks: i32) -> Result<UniquePtr<MatchIndex>>;
         fn match_ratio(index: &MatchIndex, query: &Features, ratio: f32) -> Result<Vec<i32>>;
         fn find_homography(
             src: &[f32],
@@ -168,9 +168,11 @@ pub fn detect(gray: &[u8], width: usize, height: usize, p: &DetectParams) -> Res
 pub struct MatchIndex(cxx::UniquePtr<ffi::MatchIndex>);
 
 impl MatchIndex {
-    /// Indexes `train`'s descriptors (FLANN k-d forest for float, brute force for binary).
-    pub fn new(train: &Features) -> Result<Self> {
-        let p = ffi::build_index(train).map_err(cv_err)?;
+    /// Indexes `train`'s descriptors: float descriptors in a FLANN k-d forest searched
+    /// with `flann_checks` leaf checks, or by exact brute force when `flann_checks` is 0;
+    /// binary descriptors always by brute-force Hamming distance.
+    pub fn new(train: &Features, flann_checks: i32) -> Result<Self> {
+        let p = ffi::build_index(train, flann_checks.max(0)).map_err(cv_err)?;
         if p.is_null() {
             return Err(Error::OpenCv("index construction returned null".into()));
         }
@@ -259,7 +261,7 @@ mod tests {
         let flat = vec![128u8; 64 * 64];
         let f = detect(&flat, 64, 64, &plain(Detector::Sift)).unwrap();
         assert!(f.is_empty());
-        let idx = MatchIndex::new(&f).unwrap();
+        let idx = MatchIndex::new(&f, 32).unwrap();
         assert!(idx.match_ratio(&f, 0.7).unwrap().is_empty());
     }
 
@@ -270,7 +272,7 @@ mod tests {
         for det in [Detector::Sift, Detector::Orb, Detector::Akaze] {
             let f = detect(&img, w, h, &plain(det)).unwrap();
             assert!(f.len() > 10, "{det:?} found {}", f.len());
-            let idx = MatchIndex::new(&f).unwrap();
+            let idx = MatchIndex::new(&f, 32).unwrap();
             let m = idx.match_ratio(&f, 0.99).unwrap();
             let src: Vec<_> = m.iter().map(|&(q, _)| f.point(q)).collect();
             let dst: Vec<_> = m.iter().map(|&(_, t)| f.point(t)).collect();
@@ -303,7 +305,7 @@ mod tests {
         let img = texture(96, 96, 3);
         let a = detect(&img, 96, 96, &plain(Detector::Sift)).unwrap();
         let b = detect(&img, 96, 96, &plain(Detector::Orb)).unwrap();
-        let idx = MatchIndex::new(&a).unwrap();
+        let idx = MatchIndex::new(&a, 32).unwrap();
         assert!(matches!(idx.match_ratio(&b, 0.7), Err(Error::OpenCv(_))));
     }
 }

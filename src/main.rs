@@ -46,6 +46,9 @@ struct WarpOpts {
     /// Candidates per face when matching by pose.
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().pose_candidates)]
     pose_candidates: usize,
+    /// FLANN leaf checks per query (0 = exact brute-force matching).
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().flann_checks)]
+    flann_checks: i32,
     /// Lowe ratio-test threshold.
     #[arg(long, default_value_t = 0.7)]
     ratio: f32,
@@ -55,6 +58,9 @@ struct WarpOpts {
     /// RANSAC inlier threshold in face pixels.
     #[arg(long, default_value_t = 3.0)]
     ransac_threshold: f64,
+    /// Most RANSAC iterations per candidate face.
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().ransac_iters)]
+    ransac_iters: i32,
     /// Fewest inliers to trust a face's homography.
     #[arg(long, default_value_t = 12)]
     min_inliers: usize,
@@ -77,6 +83,8 @@ impl WarpOpts {
             ratio: self.ratio,
             estimator: self.estimator,
             ransac_threshold: self.ransac_threshold,
+            ransac_iters: self.ransac_iters,
+            flann_checks: self.flann_checks,
             min_inliers: self.min_inliers,
             candidates: self.candidates,
             probe_tonemap: self.probe_tonemap,

@@ -55,12 +55,16 @@ pub struct WarpParams {
     /// Half-extent of the matched face images in face coordinates: 1 is the 90° face,
     /// more adds a margin so features near face edges are matched too.
     pub face_extent: f32,
+    /// FLANN leaf checks per query; 0 matches by exact brute force instead.
+    pub flann_checks: i32,
     /// Lowe ratio-test threshold.
     pub ratio: f32,
     /// Robust estimator for the homography.
     pub estimator: Estimator,
     /// RANSAC inlier threshold in face pixels.
     pub ransac_threshold: f64,
+    /// Most RANSAC iterations per candidate (each costs a 9x9 eigen-solve).
+    pub ransac_iters: i32,
     /// Fewest inliers for a homography to be trusted.
     pub min_inliers: usize,
     /// Smallest inlier fraction of the ratio-test matches.
@@ -91,9 +95,11 @@ impl Default for WarpParams {
             detector_threshold: 0.02,
             blur_sigma: 1.0,
             face_extent: 1.2,
+            flann_checks: 32,
             ratio: 0.7,
             estimator: Estimator::Ransac,
             ransac_threshold: 3.0,
+            ransac_iters: 1000,
             min_inliers: 12,
             min_inlier_ratio: 0.2,
             max_prior_deviation: 0.35,
@@ -472,7 +478,7 @@ fn match_face(
                 &src,
                 &dst,
                 p.ransac_threshold / px_per_unit,
-                1000,
+                p.ransac_iters.max(1),
                 0.995,
                 p.estimator,
             )?;

@@ -115,7 +115,8 @@ impl PreparedProbe {
             let gray = gray_face(&self.display, face, n, p.face_extent.max(1.0), rot);
             cv::detect(&gray, n, n, &p.detect_params())
                 .and_then(|f| {
-                    MatchIndex::new(&f).map(|index| Arc::new(FaceFeatures { features: f, index }))
+                    MatchIndex::new(&f, p.flann_checks)
+                        .map(|index| Arc::new(FaceFeatures { features: f, index }))
                 })
                 .map_err(|e| e.to_string())
         });
