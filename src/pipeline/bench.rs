@@ -81,7 +81,6 @@ pub fn bench(
         }
         // Warm-up: computes every probe face's features once.
         for (f, sdr, lin, pi) in &inputs {
-            let t = Instant::now();
             let p = probes[*pi].as_ref().expect("prepared");
             warp::warp_frame(
                 sdr,
@@ -92,7 +91,6 @@ pub fn bench(
                 sdr.width(),
                 sdr.height(),
             )?;
-            let _ = t;
         }
         let mut times = Vec::new();
         let mut stages = WarpTimings::default();
