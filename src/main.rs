@@ -70,6 +70,9 @@ struct WarpOpts {
     /// How probes are tone-mapped for matching.
     #[arg(long, value_enum, default_value_t = ProbeTonemap::Camera)]
     probe_tonemap: ProbeTonemap,
+    /// Half-extent of matched face images (1 = the 90° face; more adds a margin).
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().face_extent)]
+    face_extent: f32,
     /// Cube face size (default: a quarter of the panorama width).
     #[arg(long)]
     face_size: Option<usize>,
@@ -85,6 +88,7 @@ impl WarpOpts {
             ransac_threshold: self.ransac_threshold,
             ransac_iters: self.ransac_iters,
             flann_checks: self.flann_checks,
+            face_extent: self.face_extent,
             min_inliers: self.min_inliers,
             candidates: self.candidates,
             probe_tonemap: self.probe_tonemap,

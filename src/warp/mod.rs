@@ -94,7 +94,7 @@ impl Default for WarpParams {
             max_features: 300,
             detector_threshold: 0.02,
             blur_sigma: 1.0,
-            face_extent: 1.2,
+            face_extent: 1.0,
             flann_checks: 32,
             ratio: 0.7,
             estimator: Estimator::Ransac,
