@@ -612,10 +612,19 @@ pub fn warp_frame(
         homography: None,
     });
     let t = Instant::now();
-    let out = stitch(&maps, rel, probe, sdr_linear, p, out_w, out_h);
+    // Near-white SDR codes are only a lower bound on radiance (the sensor clipped).
+    let clipped: Vec<bool> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= CLIP_CODE))
+        .collect();
+    let out = stitch(&maps, rel, probe, sdr_linear, &clipped, p, out_w, out_h);
     timings.warp_stitch_ms = ms(t);
     Ok((out, WarpReport { faces, timings }))
 }
+
+/// 8-bit code from which an SDR channel counts as clipped.
+pub const CLIP_CODE: u8 = 250;
 
 /// Value of frame-face `f`'s mapping in direction `d` (frame axes), or `None` when the
 /// mapping does not reach that direction.
@@ -653,6 +662,7 @@ fn stitch(
     rel: Mat3,
     probe: &PreparedProbe,
     sdr_linear: &HdrImage,
+    clipped: &[bool],
     p: &WarpParams,
     w: usize,
     h: usize,
@@ -672,7 +682,17 @@ fn stitch(
                 let mut acc = [0.0f32; 3];
                 for t in &geo.taps[geo.start[i] as usize..geo.start[i + 1] as usize] {
                     let v = match &maps[t.face as usize] {
-                        FaceMap::Sdr if same_size => sdr_linear.get(col, row),
+                        FaceMap::Sdr if same_size => {
+                            let v = sdr_linear.get(col, row);
+                            if clipped[i] {
+                                // The true radiance is at least what the SDR shows; the
+                                // probe supplies the part above the white point.
+                                let f = sample_dir(hdr, rel * d);
+                                [v[0].max(f[0]), v[1].max(f[1]), v[2].max(f[2])]
+                            } else {
+                                v
+                            }
+                        }
                         m => face_value(m, t.a, t.b, d, rel, hdr, sdr_linear, p.extrapolate)
                             .unwrap_or_else(|| sample_dir(hdr, rel * d)),
                     };
@@ -830,6 +850,54 @@ mod tests {
         let expect = rotate(&probe_img, pose(10.0).from_other(&pose(0.0)), w, h);
         let (a, b) = (out.get(100, 64), expect.get(100, 64));
         assert!((a[0] - b[0]).abs() < 1e-4);
+    }
+
+    #[test]
+    fn saturated_frame_takes_the_light_from_the_probe() {
+        let (w, h) = (128, 64);
+        let mut probe_img = textured(w, h);
+        // A bright floor light straight down, which the white frame cannot measure.
+        for y in h - 3..h {
+            for x in 0..w {
+                probe_img.set(x, y, [50.0, 50.0, 50.0]);
+            }
+        }
+        let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
+        // Linearised white: the white point's radiance, far below the lamp.
+        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
+        let resp = Response::Srgb;
+        let probe = PreparedProbe::new(
+            Arc::new(probe_img.clone()),
+            pose(0.0),
+            ProbeTonemap::Camera,
+            &resp,
+            1.0,
+        );
+        let (out, _) = warp_frame(
+            &white,
+            &lin,
+            &pose(0.0),
+            &probe,
+            &WarpParams::default(),
+            w,
+            h,
+        )
+        .unwrap();
+        assert_eq!(out.count_invalid(), 0);
+        // Bottom rows: never below the SDR lower bound, and the probe's brighter
+        // values come through.
+        for x in 0..w {
+            let o = out.get(x, h - 1);
+            assert!(o[0] > 45.0, "floor light lost at column {x}: {o:?}");
+        }
+        for y in h - h / 8..h {
+            for x in 0..w {
+                assert!(
+                    out.get(x, y)[1] >= 1.0 - 1e-4,
+                    "below the SDR bound at {x},{y}"
+                );
+            }
+        }
     }
 
     #[test]
