@@ -244,6 +244,56 @@ mod tests {
         }
     }
 
+    /// Marker image: a bright spot straight right (u = 0.75, v = 0.5) and a dimmer
+    /// one straight up; they must land at the centres of the right and top faces, and
+    /// a yaw of +90° must bring the right marker to the panorama's centre.
+    #[test]
+    fn markers_pin_the_orientation() {
+        let (w, h) = (64, 32);
+        let img = HdrImage::from_fn(w, h, |x, y| {
+            let d = pixel_to_dir(x, y, w, h);
+            if d.dot(Vec3::X) > 0.99 {
+                [100.0, 0.0, 0.0]
+            } else if d.dot(Vec3::Y) > 0.99 {
+                [0.0, 100.0, 0.0]
+            } else {
+                [0.0, 0.0, 0.0]
+            }
+        });
+        let faces = equirect_to_cube(&img, 16);
+        let argmax = |f: &HdrImage, k: usize| {
+            let mut best = (0, 0, f32::MIN);
+            for y in 0..f.height() {
+                for x in 0..f.width() {
+                    if f.get(x, y)[k] > best.2 {
+                        best = (x, y, f.get(x, y)[k]);
+                    }
+                }
+            }
+            (best.0, best.1)
+        };
+        let (x, y) = argmax(&faces[CubeFace::Right.index()], 0);
+        assert!(
+            (7..=8).contains(&x) && (7..=8).contains(&y),
+            "right marker at {x},{y}"
+        );
+        assert!(faces[CubeFace::Left.index()]
+            .data()
+            .iter()
+            .all(|&v| v == 0.0));
+        let (x, y) = argmax(&faces[CubeFace::Top.index()], 1);
+        assert!(
+            (7..=8).contains(&x) && (7..=8).contains(&y),
+            "top marker at {x},{y}"
+        );
+        let turned = crate::sphere::rotate(&img, crate::sphere::ypr_to_mat(90.0, 0.0, 0.0), w, h);
+        let (x, y) = argmax(&turned, 0);
+        assert!(
+            (31..=32).contains(&x) && (15..=16).contains(&y),
+            "after yaw 90 at {x},{y}"
+        );
+    }
+
     #[test]
     fn equirect_cube_equirect_round_trip() {
         let (w, h) = (256, 128);
