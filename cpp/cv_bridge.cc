@@ -7,6 +7,7 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
 
 #include <stdexcept>
 #include <string>
@@ -204,6 +205,45 @@ Homography find_homography(rust::Slice<const float> src,
   for (uchar m : mask)
     out.inliers.push_back(m ? 1 : 0);
   out.ok = true;
+  return out;
+}
+
+rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
+                          rust::Slice<const uint8_t> b, int32_t width,
+                          int32_t height, const DisParams &p) {
+  if (width <= 0 || height <= 0 || a.size() != size_t(width) * size_t(height) ||
+      b.size() != a.size())
+    throw std::invalid_argument("flow images differ in size or do not match it");
+  cv::Mat ma(height, width, CV_8U, const_cast<uint8_t *>(a.data()));
+  cv::Mat mb(height, width, CV_8U, const_cast<uint8_t *>(b.data()));
+  int preset = p.preset == 0   ? cv::DISOpticalFlow::PRESET_ULTRAFAST
+               : p.preset == 1 ? cv::DISOpticalFlow::PRESET_FAST
+                               : cv::DISOpticalFlow::PRESET_MEDIUM;
+  auto dis = cv::DISOpticalFlow::create(preset);
+  if (p.finest_scale >= 0)
+    dis->setFinestScale(p.finest_scale);
+  if (p.patch_size > 0)
+    dis->setPatchSize(p.patch_size);
+  if (p.patch_stride > 0)
+    dis->setPatchStride(p.patch_stride);
+  if (p.gradient_descent_iterations > 0)
+    dis->setGradientDescentIterations(p.gradient_descent_iterations);
+  if (p.variational_refinement_iterations >= 0)
+    dis->setVariationalRefinementIterations(
+        p.variational_refinement_iterations);
+  dis->setUseMeanNormalization(p.use_mean_normalization);
+  dis->setUseSpatialPropagation(p.use_spatial_propagation);
+  cv::Mat flow;
+  dis->calc(ma, mb, flow);
+  if (flow.type() != CV_32FC2 || flow.rows != height || flow.cols != width)
+    throw std::runtime_error("DIS returned a flow field of unexpected shape");
+  rust::Vec<float> out;
+  out.reserve(size_t(width) * size_t(height) * 2);
+  for (int y = 0; y < height; ++y) {
+    const float *row = flow.ptr<float>(y);
+    for (int x = 0; x < 2 * width; ++x)
+      out.push_back(row[x]);
+  }
   return out;
 }
 

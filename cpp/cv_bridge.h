@@ -12,6 +12,7 @@ namespace lumiprobe {
 
 struct Features;
 struct Homography;
+struct DisParams;
 
 // A descriptor index over one image's features, built once and queried many times
 // (probe faces are indexed once per probe and rotation).
@@ -45,5 +46,11 @@ Homography find_homography(rust::Slice<const float> src,
                            rust::Slice<const float> dst, double threshold,
                            int32_t max_iters, double confidence,
                            int32_t method);
+
+// Dense optical flow (DIS) from `a` to `b`: a(x) ~ b(x + flow(x)); returns
+// interleaved (dx, dy) per pixel.
+rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
+                          rust::Slice<const uint8_t> b, int32_t width,
+                          int32_t height, const DisParams &params);
 
 } // namespace lumiprobe

@@ -34,6 +34,27 @@ mod ffi {
         ok: bool,
     }
 
+    /// Settings of OpenCV's DIS optical flow (negative or zero = the preset's value).
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct DisParams {
+        /// 0 ultrafast, 1 fast, 2 medium.
+        preset: i32,
+        /// Finest pyramid level used (0 = full resolution; -1 = preset).
+        finest_scale: i32,
+        /// Patch size in pixels.
+        patch_size: i32,
+        /// Patch stride in pixels.
+        patch_stride: i32,
+        /// Gradient-descent iterations per patch.
+        gradient_descent_iterations: i32,
+        /// Variational refinement iterations (-1 = preset).
+        variational_refinement_iterations: i32,
+        /// Normalise patch means (robust to brightness differences).
+        use_mean_normalization: bool,
+        /// Spatial propagation of good patch flows.
+        use_spatial_propagation: bool,
+    }
+
     unsafe extern "C++" {
         include!("lumiprobe/cpp/cv_bridge.h");
 
@@ -51,6 +72,13 @@ mod ffi {
         ) -> Result<Features>;
         fn build_index(train: &Features, flann_checks: i32) -> Result<UniquePtr<MatchIndex>>;
         fn match_ratio(index: &MatchIndex, query: &Features, ratio: f32) -> Result<Vec<i32>>;
+        fn dis_flow(
+            a: &[u8],
+            b: &[u8],
+            width: i32,
+            height: i32,
+            params: &DisParams,
+        ) -> Result<Vec<f32>>;
         fn find_homography(
             src: &[f32],
             dst: &[f32],
@@ -62,7 +90,7 @@ mod ffi {
     }
 }
 
-pub use ffi::{Features, Homography};
+pub use ffi::{DisParams, Features, Homography};
 
 // SAFETY: MatchIndex is immutable after construction; its only mutable state (the
 // FLANN search) is guarded by a mutex on the C++ side.
@@ -194,6 +222,40 @@ impl MatchIndex {
     }
 }
 
+impl Default for DisParams {
+    fn default() -> Self {
+        DisParams {
+            preset: 1,
+            finest_scale: -1,
+            patch_size: 0,
+            patch_stride: 0,
+            gradient_descent_iterations: 0,
+            variational_refinement_iterations: -1,
+            use_mean_normalization: true,
+            use_spatial_propagation: true,
+        }
+    }
+}
+
+/// Dense optical flow from `a` to `b` (8-bit gray, same size): for each pixel `x`,
+/// `a(x) ≈ b(x + flow(x))`. Returns interleaved `(dx, dy)` in pixels.
+pub fn dis_flow(
+    a: &[u8],
+    b: &[u8],
+    width: usize,
+    height: usize,
+    params: &DisParams,
+) -> Result<Vec<f32>> {
+    if width == 0 || height == 0 || a.len() != width * height || b.len() != a.len() {
+        return Err(Error::Invalid(format!(
+            "flow needs two gray images of {width}x{height}; got {} and {} bytes",
+            a.len(),
+            b.len()
+        )));
+    }
+    ffi::dis_flow(a, b, width as i32, height as i32, params).map_err(cv_err)
+}
+
 /// Fits a homography `dst ~ H src` robustly. Returns `None` when fewer than four
 /// correspondences are given or no model is found.
 pub fn find_homography(
@@ -285,6 +347,26 @@ mod tests {
                 assert!((hn[k] - id[k]).abs() < 1e-3, "{det:?}: {hn:?}");
             }
         }
+    }
+
+    #[test]
+    fn dis_recovers_a_shift_and_rejects_mismatched_sizes() {
+        let (w, h) = (96, 64);
+        let big = texture(w + 8, h, 11);
+        // a(x) = b(x + 3): a shows what b shows three pixels further right.
+        let row = w + 8;
+        let a: Vec<u8> = (0..h * w).map(|i| big[(i / w) * row + i % w + 4]).collect();
+        let b: Vec<u8> = (0..h * w).map(|i| big[(i / w) * row + i % w + 1]).collect();
+        let f = dis_flow(&a, &b, w, h, &DisParams::default()).unwrap();
+        // Median dx over the interior.
+        let mut dx: Vec<f32> = (10..h - 10)
+            .flat_map(|y| (10..w - 10).map(move |x| (y, x)))
+            .map(|(y, x)| f[2 * (y * w + x)])
+            .collect();
+        dx.sort_by(f32::total_cmp);
+        let med = dx[dx.len() / 2];
+        assert!((med - 3.0).abs() < 0.5, "median dx {med}");
+        assert!(dis_flow(&a, &b[..10], w, h, &DisParams::default()).is_err());
     }
 
     #[test]
