@@ -9,6 +9,7 @@
 pub mod cv;
 pub mod error;
 pub mod eval;
+pub mod flow;
 pub mod fsutil;
 pub mod ibl;
 pub mod image;

@@ -1,0 +1,5 @@
+//! The flow method: dense optical flow from the SDR frame to its neighbouring probes,
+//! motion confidence, and graph-cut fusion of the warped probes.
+
+pub mod dense;
+// pub mod method; (enabled once graphcut lands)
