@@ -3,7 +3,7 @@
 
 pub mod response;
 
-pub use response::Response;
+pub use response::{EncodeLut, Response};
 
 use crate::image::{luminance, HdrImage};
 
