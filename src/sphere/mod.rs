@@ -81,6 +81,20 @@ pub fn sample_px(img: &HdrImage, x: f32, y: f32) -> [f32; 3] {
     let fy = yf - y0;
     let x0 = x0 as i64;
     let y0 = y0 as i64;
+    if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
+        // Interior: no wrapping needed.
+        let (x0, y0, wu) = (x0 as usize, y0 as usize, w as usize);
+        let d = img.data();
+        let i = 3 * (y0 * wu + x0);
+        let j = i + 3 * wu;
+        let mut out = [0.0; 3];
+        for k in 0..3 {
+            let top = d[i + k] + (d[i + 3 + k] - d[i + k]) * fx;
+            let bot = d[j + k] + (d[j + 3 + k] - d[j + k]) * fx;
+            out[k] = top + (bot - top) * fy;
+        }
+        return out;
+    }
     let fetch = |xi: i64, yi: i64| -> [f32; 3] {
         let (mut xi, mut yi) = (xi, yi);
         if yi < 0 {
