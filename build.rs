@@ -25,6 +25,7 @@ fn main() {
     let mut build = cxx_build::bridge("src/cv.rs");
     build
         .file("cpp/cv_bridge.cc")
+        .file("cpp/maxflow.cc")
         .std("c++17")
         .flag_if_supported("-O2")
         .flag_if_supported("-Wno-unused-parameter");
@@ -46,7 +47,13 @@ fn main() {
     ] {
         println!("cargo:rustc-link-lib=dylib={m}");
     }
-    for f in ["cpp/cv_bridge.h", "cpp/cv_bridge.cc", "src/cv.rs"] {
+    for f in [
+        "cpp/cv_bridge.h",
+        "cpp/cv_bridge.cc",
+        "cpp/maxflow.h",
+        "cpp/maxflow.cc",
+        "src/cv.rs",
+    ] {
         println!("cargo:rerun-if-changed={f}");
     }
 }

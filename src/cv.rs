@@ -55,6 +55,71 @@ mod ffi {
         use_spatial_propagation: bool,
     }
 
+    // ---- graph cut (cpp/maxflow.h): Boykov-Kolmogorov max-flow, expansion, swap ----
+
+    /// One arc pair of a max-flow graph: `from -> to` with `cap`, `to -> from` with `rev_cap`.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct GcEdge {
+        /// Tail node.
+        from: u32,
+        /// Head node.
+        to: u32,
+        /// Capacity `from -> to` (finite, >= 0).
+        cap: f64,
+        /// Capacity `to -> from` (finite, >= 0).
+        rev_cap: f64,
+    }
+
+    /// Result of a max-flow computation.
+    #[derive(Clone, Debug, Default)]
+    struct GcFlow {
+        /// Maximum flow value (= minimum cut capacity).
+        flow: f64,
+        /// Per node: 1 in the final source tree (reachable from s in the residual
+        /// graph), 2 in the final sink tree (reaches t), 0 in neither.
+        side: Vec<u8>,
+    }
+
+    /// Settings of a grid energy minimisation (see `crate::flow::graphcut`).
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct GcGridParams {
+        /// Grid width.
+        width: u32,
+        /// Grid height.
+        height: u32,
+        /// Number of labels (1..=255).
+        labels: u32,
+        /// Feature channels per pixel and label.
+        channels: u32,
+        /// Weight of the smoothness term.
+        lambda: f64,
+        /// Cap of one feature distance (also used for non-finite features).
+        seam_cap: f64,
+        /// Column 0 and column `width - 1` are neighbours (when `width >= 3`).
+        wrap_x: bool,
+        /// Alpha-beta swap instead of alpha-expansion.
+        swap: bool,
+        /// Maximum number of cycles over all moves.
+        max_cycles: u32,
+        /// Throw if a move's graph would raise the energy (construction bug).
+        check: bool,
+    }
+
+    /// Result of a grid energy minimisation.
+    #[derive(Clone, Debug, Default)]
+    struct GcGridResult {
+        /// Final label per pixel, row-major.
+        labels: Vec<u8>,
+        /// Sum of data costs.
+        data_energy: f64,
+        /// `lambda` times the sum of seam costs.
+        smooth_energy: f64,
+        /// Cycles run.
+        cycles: u32,
+        /// Total energy after each cycle.
+        history: Vec<f64>,
+    }
+
     unsafe extern "C++" {
         include!("lumiprobe/cpp/cv_bridge.h");
 
@@ -87,6 +152,19 @@ mod ffi {
             confidence: f64,
             method: i32,
         ) -> Result<Homography>;
+    }
+
+    // ---- graph cut ----
+    unsafe extern "C++" {
+        include!("lumiprobe/cpp/maxflow.h");
+
+        fn gc_max_flow(nodes: u32, edges: &[GcEdge], terminals: &[f64]) -> Result<GcFlow>;
+        fn gc_optimize_grid(
+            params: &GcGridParams,
+            data: &[f32],
+            features: &[f32],
+            init: &[u8],
+        ) -> Result<GcGridResult>;
     }
 }
 
@@ -282,6 +360,32 @@ pub fn find_homography(
     };
     let h = ffi::find_homography(&a, &b, threshold, max_iters, confidence, m).map_err(cv_err)?;
     Ok(if h.ok { Some(h) } else { None })
+}
+
+// ---- graph cut: safe wrappers (validation proper lives in crate::flow::graphcut) ----
+
+pub use ffi::{GcEdge, GcFlow, GcGridParams, GcGridResult};
+
+fn gc_err(e: cxx::Exception) -> Error {
+    Error::Invalid(e.what().to_string())
+}
+
+/// Max-flow / min-cut (Boykov & Kolmogorov 2004) on `nodes` nodes with the given arc
+/// pairs and `terminals` = `(source cap, sink cap)` interleaved per node. The C++ side
+/// checks indices and capacities and reports violations as [`Error::Invalid`].
+pub fn gc_max_flow(nodes: u32, edges: &[GcEdge], terminals: &[f64]) -> Result<GcFlow> {
+    ffi::gc_max_flow(nodes, edges, terminals).map_err(gc_err)
+}
+
+/// Alpha-expansion or alpha-beta swap on a 4-connected grid (see
+/// `crate::flow::graphcut::optimize`, which validates before calling this).
+pub fn gc_optimize_grid(
+    params: &GcGridParams,
+    data: &[f32],
+    features: &[f32],
+    init: &[u8],
+) -> Result<GcGridResult> {
+    ffi::gc_optimize_grid(params, data, features, init).map_err(gc_err)
 }
 
 #[cfg(test)]
