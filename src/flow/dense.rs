@@ -165,29 +165,32 @@ pub fn confidence(fwd: &FlowField, bwd: &FlowField, gray: &[u8], p: &FlowParams)
     let sigma = p.fb_sigma.max(1e-3);
     let half = p.texture_half.max(1e-3);
     let mut out = vec![0.0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (dx, dy) = fwd.at(x, y);
-            let (bx, by) = bwd.sample(x as f32 + dx, y as f32 + dy);
-            let e = (dx + bx).hypot(dy + by);
-            let c_fb = (-(e / sigma).powi(2)).exp();
-            let g = |xx: i64, yy: i64| {
-                gray[(yy.clamp(0, h as i64 - 1) as usize) * w + xx.rem_euclid(w as i64) as usize]
-                    as f32
-            };
-            let (xi, yi) = (x as i64, y as i64);
-            let gx = 0.5 * (g(xi + 1, yi) - g(xi - 1, yi));
-            let gy = 0.5 * (g(xi, yi + 1) - g(xi, yi - 1));
-            let mag = gx.hypot(gy);
-            let c_tex = mag / (mag + half);
-            let c = c_fb * c_tex;
-            out[y * w + x] = if c.is_finite() {
-                c.clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-        }
-    }
+    use rayon::prelude::*;
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, line)| {
+            for x in 0..w {
+                let (dx, dy) = fwd.at(x, y);
+                let (bx, by) = bwd.sample(x as f32 + dx, y as f32 + dy);
+                let e = (dx + bx).hypot(dy + by);
+                let c_fb = (-(e / sigma).powi(2)).exp();
+                let g = |xx: i64, yy: i64| {
+                    gray[(yy.clamp(0, h as i64 - 1) as usize) * w
+                        + xx.rem_euclid(w as i64) as usize] as f32
+                };
+                let (xi, yi) = (x as i64, y as i64);
+                let gx = 0.5 * (g(xi + 1, yi) - g(xi - 1, yi));
+                let gy = 0.5 * (g(xi, yi + 1) - g(xi, yi - 1));
+                let mag = gx.hypot(gy);
+                let c_tex = mag / (mag + half);
+                let c = c_fb * c_tex;
+                line[x] = if c.is_finite() {
+                    c.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+            }
+        });
     out
 }
 

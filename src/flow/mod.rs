@@ -2,4 +2,5 @@
 //! motion confidence, and graph-cut fusion of the warped probes.
 
 pub mod dense;
-// pub mod method; (enabled once graphcut lands)
+pub mod graphcut;
+pub mod method;

@@ -1,11 +1,13 @@
-//! Per-frame timing of a method on a scene, with probe features already cached (as in
-//! a long run, where each probe serves many frames), on a chosen number of threads.
+//! Per-frame timing of a method on a scene, with probes loaded and their features
+//! cached first (as in a long run, where each probe serves many frames), on a chosen
+//! number of threads.
 
-use super::{linearize, load_frame, load_probe, RunParams};
+use super::{linearize, load_frame, load_probe, predict_frame, RunParams};
 use crate::error::{Error, Result};
-use crate::warp::{self, PreparedProbe, WarpTimings};
+use crate::flow::method::FlowTimings;
+use crate::warp::{PreparedProbe, WarpTimings};
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 /// Timing summary of a benchmark.
@@ -13,6 +15,8 @@ use std::time::Instant;
 pub struct BenchReport {
     /// Scene name.
     pub scene: String,
+    /// Method timed.
+    pub method: super::Method,
     /// Working size.
     pub size: (usize, usize),
     /// Threads used.
@@ -25,9 +29,11 @@ pub struct BenchReport {
     pub mean_ms: f64,
     /// Median wall-clock time per frame in ms.
     pub median_ms: f64,
-    /// Mean stage times per frame in ms.
-    pub stages: WarpTimings,
-    /// One-off cost of preparing a probe (tone map + features of the faces used), in ms.
+    /// Mean warp-stage times per frame in ms (summed over the probes warped).
+    pub warp_stages: WarpTimings,
+    /// Mean flow-stage times per frame in ms.
+    pub flow_stages: FlowTimings,
+    /// One-off cost of loading and preparing a probe, in ms.
     pub probe_prepare_ms: f64,
     /// Peak resident memory of the process in MiB (Linux VmHWM), if known.
     pub peak_rss_mib: Option<f64>,
@@ -41,8 +47,16 @@ pub fn peak_rss_mib() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-/// Times the warp method on every frame of `scene` `repeats` times, single pass of
-/// warm-up first so that probe features are cached, inside a pool of `threads`.
+fn add_warp(acc: &mut WarpTimings, t: &WarpTimings) {
+    acc.tonemap_ms += t.tonemap_ms;
+    acc.features_ms += t.features_ms;
+    acc.probe_features_ms += t.probe_features_ms;
+    acc.matching_ms += t.matching_ms;
+    acc.warp_stitch_ms += t.warp_stitch_ms;
+}
+
+/// Times the configured method on every frame of `scene` `repeats` times inside a
+/// pool of `threads`, after one untimed pass that loads probes and caches features.
 pub fn bench(
     scene: &crate::scene::Scene,
     params: &RunParams,
@@ -55,87 +69,105 @@ pub fn bench(
         .map_err(|e| Error::Invalid(e.to_string()))?;
     crate::cv::set_num_threads(1);
     pool.install(|| {
-        let mut probes: Vec<Option<Arc<PreparedProbe>>> = vec![None; scene.probes.len()];
+        let prep_total = std::sync::Mutex::new((0.0f64, 0usize));
+        let cells: Vec<OnceLock<std::result::Result<(Arc<PreparedProbe>, usize), String>>> =
+            scene.probes.iter().map(|_| OnceLock::new()).collect();
+        let get_probe = |i: usize| -> Result<(Arc<PreparedProbe>, usize)> {
+            cells[i]
+                .get_or_init(|| {
+                    let t = Instant::now();
+                    let r = load_probe(scene, i, params.size)
+                        .map(|(img, rep)| {
+                            (
+                                Arc::new(PreparedProbe::new(
+                                    Arc::new(img),
+                                    scene.probes[i].pose,
+                                    params.warp.probe_tonemap,
+                                    &scene.response,
+                                    scene.path_gain,
+                                )),
+                                rep,
+                            )
+                        })
+                        .map_err(|e| e.to_string());
+                    if let Ok(mut p) = prep_total.lock() {
+                        p.0 += t.elapsed().as_secs_f64() * 1e3;
+                        p.1 += 1;
+                    }
+                    r
+                })
+                .clone()
+                .map_err(Error::Invalid)
+        };
         let mut inputs = Vec::new();
-        let mut prep_ms = 0.0;
-        let mut prepared = 0usize;
         for f in &scene.frames {
             let sdr = load_frame(f, params.size)?;
             let lin = linearize(&sdr, scene);
-            let pi = scene.nearest_probe(f.pose.position);
-            if probes[pi].is_none() {
-                let (img, _) =
-                    load_probe(scene, pi, params.size.or(Some((sdr.width(), sdr.height()))))?;
-                let t = Instant::now();
-                probes[pi] = Some(Arc::new(PreparedProbe::new(
-                    Arc::new(img),
-                    scene.probes[pi].pose,
-                    params.warp.probe_tonemap,
-                    &scene.response,
-                    scene.path_gain,
-                )));
-                prep_ms += t.elapsed().as_secs_f64() * 1e3;
-                prepared += 1;
-            }
-            inputs.push((f, sdr, lin, pi));
+            let mut used = scene.probes_by_distance(f.pose.position);
+            used.truncate(params.method.probes_needed());
+            inputs.push((f, sdr, lin, used));
         }
-        // Warm-up: computes every probe face's features once.
-        for (f, sdr, lin, pi) in &inputs {
-            let p = probes[*pi].as_ref().expect("prepared");
-            warp::warp_frame(
-                sdr,
-                lin,
-                &f.pose,
-                p,
-                &params.warp,
-                sdr.width(),
-                sdr.height(),
-            )?;
+        // Untimed pass: loads probes and computes every probe face's features once.
+        for (f, sdr, lin, used) in &inputs {
+            predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
         }
         let mut times = Vec::new();
-        let mut stages = WarpTimings::default();
+        let mut warp_stages = WarpTimings::default();
+        let mut flow_stages = FlowTimings::default();
         for _ in 0..repeats.max(1) {
-            for (f, sdr, lin, pi) in &inputs {
-                let p = probes[*pi].as_ref().expect("prepared");
+            for (f, sdr, lin, used) in &inputs {
                 let t = Instant::now();
-                let (_, rep) = warp::warp_frame(
-                    sdr,
-                    lin,
-                    &f.pose,
-                    p,
-                    &params.warp,
-                    sdr.width(),
-                    sdr.height(),
-                )?;
+                let (_, wr, fr) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
-                stages.tonemap_ms += rep.timings.tonemap_ms;
-                stages.features_ms += rep.timings.features_ms;
-                stages.matching_ms += rep.timings.matching_ms;
-                stages.warp_stitch_ms += rep.timings.warp_stitch_ms;
-                stages.probe_features_ms += rep.timings.probe_features_ms;
+                if let Some(w) = wr {
+                    add_warp(&mut warp_stages, &w.timings);
+                }
+                if let Some(fr) = fr {
+                    flow_stages.tonemap_ms += fr.timings.tonemap_ms;
+                    flow_stages.flow_ms += fr.timings.flow_ms;
+                    flow_stages.warp_ms += fr.timings.warp_ms;
+                    flow_stages.graphcut_ms += fr.timings.graphcut_ms;
+                }
             }
         }
         let n = times.len().max(1) as f64;
-        stages.tonemap_ms /= n;
-        stages.features_ms /= n;
-        stages.matching_ms /= n;
-        stages.warp_stitch_ms /= n;
-        stages.probe_features_ms /= n;
+        for v in [
+            &mut warp_stages.tonemap_ms,
+            &mut warp_stages.features_ms,
+            &mut warp_stages.probe_features_ms,
+            &mut warp_stages.matching_ms,
+            &mut warp_stages.warp_stitch_ms,
+        ] {
+            *v /= n;
+        }
+        for v in [
+            &mut flow_stages.tonemap_ms,
+            &mut flow_stages.flow_ms,
+            &mut flow_stages.warp_ms,
+            &mut flow_stages.graphcut_ms,
+        ] {
+            *v /= n;
+        }
         let mut sorted = times.clone();
         sorted.sort_by(f64::total_cmp);
         let size = inputs
             .first()
             .map(|(_, s, _, _)| (s.width(), s.height()))
             .unwrap_or((0, 0));
+        let (prep_ms, prepared) = *prep_total
+            .lock()
+            .map_err(|_| Error::Invalid("timer lock".into()))?;
         Ok(BenchReport {
             scene: scene.name.clone(),
+            method: params.method,
             size,
             threads: threads.max(1),
             frames: inputs.len(),
             repeats: repeats.max(1),
             mean_ms: times.iter().sum::<f64>() / n,
             median_ms: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
-            stages,
+            warp_stages,
+            flow_stages,
             probe_prepare_ms: if prepared > 0 {
                 prep_ms / prepared as f64
             } else {

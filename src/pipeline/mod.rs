@@ -7,6 +7,7 @@ pub mod demo;
 pub mod evaluate;
 
 use crate::error::{Error, Result};
+use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
@@ -21,6 +22,21 @@ use std::time::Instant;
 pub enum Method {
     /// Per-face feature homographies (thesis Part II).
     Warp,
+    /// Optical flow from the two neighbouring probes, fused by a graph cut (thesis Part I).
+    Flow,
+    /// The two neighbours first warped by the warp method, then fused by the flow
+    /// method (thesis Fig. 5.11d).
+    Hybrid,
+}
+
+impl Method {
+    /// How many probes (nearest first) the method uses per frame.
+    pub fn probes_needed(self) -> usize {
+        match self {
+            Method::Warp => 1,
+            Method::Flow | Method::Hybrid => 2,
+        }
+    }
 }
 
 /// Settings of a run.
@@ -32,6 +48,8 @@ pub struct RunParams {
     pub size: Option<(usize, usize)>,
     /// Warp-method settings.
     pub warp: WarpParams,
+    /// Flow-method settings.
+    pub flow: FlowMethodParams,
 }
 
 impl Default for RunParams {
@@ -40,6 +58,7 @@ impl Default for RunParams {
             method: Method::Warp,
             size: None,
             warp: WarpParams::default(),
+            flow: FlowMethodParams::default(),
         }
     }
 }
@@ -53,8 +72,12 @@ pub struct FrameRecord {
     pub probe: String,
     /// Distance from the frame to that probe in metres.
     pub probe_distance_m: f32,
-    /// Warp-method details.
+    /// All probes the method used, nearest first.
+    pub probes: Vec<String>,
+    /// Warp-method details (for the hybrid, those of the nearest probe).
     pub warp: Option<WarpReport>,
+    /// Flow-method details.
+    pub flow: Option<FlowReport>,
     /// Time for the whole frame, loading excluded, in milliseconds.
     pub total_ms: f64,
     /// Input pixels that were NaN, infinite or negative and were repaired.
@@ -187,19 +210,22 @@ pub fn run(
         .frames
         .par_iter()
         .map(|frame| {
-            let pi = scene.nearest_probe(frame.pose.position);
+            let mut used = scene.probes_by_distance(frame.pose.position);
+            used.truncate(params.method.probes_needed());
+            let pi = used[0];
             let probe_meta = &scene.probes[pi];
-            let fp = fingerprint(&[
+            let mut parts = vec![
                 settings.clone(),
                 file_stamp(&frame.sdr),
-                probe_meta
-                    .hdr
-                    .as_deref()
-                    .map(file_stamp)
-                    .unwrap_or_default(),
-                format!("{:?}{:?}", frame.pose, probe_meta.pose),
+                format!("{:?}", frame.pose),
                 env!("CARGO_PKG_VERSION").to_string(),
-            ]);
+            ];
+            for &u in &used {
+                let m = &scene.probes[u];
+                parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
+                parts.push(format!("{:?}", m.pose));
+            }
+            let fp = fingerprint(&parts);
             let out = out_dir.join(format!("{}.exr", frame.id));
             let side = out_dir.join(format!("{}.json", frame.id));
             if out.exists() {
@@ -216,22 +242,20 @@ pub fn run(
                 }
             }
             let sdr = load_frame(frame, params.size)?;
-            let (probe, repaired) = get_probe(pi)?;
+            let (_, repaired) = get_probe(pi)?;
             let t = Instant::now();
             let lin = linearize(&sdr, scene);
-            let (w, h) = (sdr.width(), sdr.height());
-            let (img, report) = match params.method {
-                Method::Warp => {
-                    warp::warp_frame(&sdr, &lin, &frame.pose, &probe, &params.warp, w, h)?
-                }
-            };
+            let (img, warp_report, flow_report) =
+                predict_frame(scene, frame, &sdr, &lin, &used, &get_probe, params)?;
             let total_ms = t.elapsed().as_secs_f64() * 1e3;
             io::write_hdr(&out, &img)?;
             let rec = FrameRecord {
                 id: frame.id.clone(),
                 probe: probe_meta.id.clone(),
                 probe_distance_m: probe_meta.pose.position.distance(frame.pose.position),
-                warp: Some(report),
+                probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
+                warp: warp_report,
+                flow: flow_report,
                 total_ms,
                 repaired_pixels: repaired,
                 fingerprint: fp,
@@ -265,6 +289,61 @@ pub fn run(
     let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
     crate::fsutil::write_atomic(&out_dir.join("report.json"), &json)?;
     Ok(report)
+}
+
+/// Predicts one frame with the configured method from its SDR image `sdr`, its
+/// radiance `lin`, and the probes `used` (nearest first), prepared by `get_probe`.
+pub fn predict_frame(
+    scene: &Scene,
+    frame: &Frame,
+    sdr: &SdrImage,
+    lin: &HdrImage,
+    used: &[usize],
+    get_probe: &(dyn Fn(usize) -> Result<(Arc<PreparedProbe>, usize)> + Sync),
+    params: &RunParams,
+) -> Result<(HdrImage, Option<WarpReport>, Option<FlowReport>)> {
+    let (w, h) = (sdr.width(), sdr.height());
+    Ok(match params.method {
+        Method::Warp => {
+            let (probe, _) = get_probe(used[0])?;
+            let (img, r) = warp::warp_frame(sdr, lin, &frame.pose, &probe, &params.warp, w, h)?;
+            (img, Some(r), None)
+        }
+        Method::Flow | Method::Hybrid => {
+            let mut imgs = Vec::with_capacity(used.len());
+            let mut first_warp = None;
+            for &u in used {
+                let (pp, _) = get_probe(u)?;
+                let img = if params.method == Method::Flow {
+                    crate::sphere::rotate(&pp.image, frame.pose.from_other(&pp.pose), w, h)
+                } else {
+                    let (img, r) =
+                        warp::warp_frame(sdr, lin, &frame.pose, &pp, &params.warp, w, h)?;
+                    first_warp.get_or_insert(r);
+                    img
+                };
+                imgs.push(img);
+            }
+            let sources: Vec<Source> = used
+                .iter()
+                .zip(&imgs)
+                .map(|(&u, img)| Source {
+                    name: scene.probes[u].id.clone(),
+                    image: img,
+                    distance_m: scene.probes[u].pose.position.distance(frame.pose.position),
+                })
+                .collect();
+            let (img, r) = flow_frame(
+                sdr,
+                lin,
+                &sources,
+                &scene.response,
+                scene.path_gain,
+                &params.flow,
+            )?;
+            (img, first_warp, Some(r))
+        }
+    })
 }
 
 /// Output path of a frame's prediction.

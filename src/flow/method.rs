@@ -1,0 +1,324 @@
+//! The flow method (thesis Part I, after Gupta et al. 2009): the two neighbouring HDR
+//! probes, already turned into the frame's orientation, are warped onto the SDR
+//! frame with dense optical flow and fused per pixel by a graph cut whose labels are
+//! "left probe", "right probe" and "SDR frame".
+
+use super::dense::{confidence, pano_flow, warp_backward, FlowParams};
+use super::graphcut::{argmin_labels, optimize, GridEnergy, Optimizer, INFEASIBLE};
+use crate::error::{Error, Result};
+use crate::image::{HdrImage, SdrImage};
+use crate::tonemap::{to_gray8, EncodeLut, Response};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Settings of the flow method.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FlowMethodParams {
+    /// Optical flow and confidence.
+    pub flow: FlowParams,
+    /// Data cost of the SDR label (the thesis's c = 500: SDR only where nothing
+    /// else is valid).
+    pub sdr_cost: f32,
+    /// Weight of the seam (smoothness) cost against the data cost.
+    pub lambda: f32,
+    /// Move-making algorithm.
+    pub optimizer: Optimizer,
+    /// Most expansion/swap cycles.
+    pub max_cycles: usize,
+    /// Ablation: choose the cheapest label per pixel, no smoothness.
+    pub no_smoothness: bool,
+    /// Radius of the box window over which the colour term is averaged (0 = per pixel).
+    pub dc_radius: usize,
+}
+
+impl Default for FlowMethodParams {
+    fn default() -> Self {
+        FlowMethodParams {
+            flow: FlowParams::default(),
+            sdr_cost: 500.0,
+            lambda: 1.0,
+            optimizer: Optimizer::Expansion,
+            max_cycles: 4,
+            no_smoothness: false,
+            dc_radius: 0,
+        }
+    }
+}
+
+/// One HDR source for the fusion, already in the frame's orientation.
+pub struct Source<'a> {
+    /// Name for the report (probe id).
+    pub name: String,
+    /// Radiance panorama, same size as the frame.
+    pub image: &'a HdrImage,
+    /// Distance from the source's capture position to the frame, in metres.
+    pub distance_m: f32,
+}
+
+/// Stage timings of the flow method, in milliseconds.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FlowTimings {
+    /// Tone mapping of sources and frame to 8 bit.
+    pub tonemap_ms: f64,
+    /// Forward and backward optical flow.
+    pub flow_ms: f64,
+    /// Confidence, backward warping of HDR and display images, data costs.
+    pub warp_ms: f64,
+    /// The graph cut.
+    pub graphcut_ms: f64,
+}
+
+/// What the flow method did for one frame.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FlowReport {
+    /// Label names: the sources, then `sdr`.
+    pub labels: Vec<String>,
+    /// Fraction of pixels taking each label.
+    pub label_fractions: Vec<f32>,
+    /// Mean motion confidence per source.
+    pub mean_confidence: Vec<f32>,
+    /// Mean flow magnitude per source, in pixels.
+    pub mean_flow_px: Vec<f32>,
+    /// Final energy, and its data and smoothness parts.
+    pub energy: f64,
+    /// Data part of the energy.
+    pub data_energy: f64,
+    /// Smoothness part of the energy.
+    pub smooth_energy: f64,
+    /// Energy after each cycle.
+    pub energy_history: Vec<f64>,
+    /// Stage timings.
+    pub timings: FlowTimings,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Display values in [0, 1] of radiance as the frame camera would record it.
+fn camera_display(img: &HdrImage, lut: &EncodeLut) -> Vec<f32> {
+    img.data().iter().map(|&v| lut.encode(v)).collect()
+}
+
+/// Mean over a `(2r+1)^2` box, wrapping horizontally and clamping vertically.
+fn box_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    if r == 0 {
+        return v.to_vec();
+    }
+    let ri = r as i64;
+    let mut tmp = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut s = 0.0;
+            for dx in -ri..=ri {
+                s += v[y * w + (x as i64 + dx).rem_euclid(w as i64) as usize];
+            }
+            tmp[y * w + x] = s / (2 * r + 1) as f32;
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut s = 0.0;
+            for dy in -ri..=ri {
+                s += tmp[(y as i64 + dy).clamp(0, h as i64 - 1) as usize * w + x];
+            }
+            out[y * w + x] = s / (2 * r + 1) as f32;
+        }
+    }
+    out
+}
+
+/// Fuses `sources` (one or two, in the frame's orientation) onto the SDR frame.
+/// `sdr_linear` is the frame's radiance (used by the SDR label); `response` and
+/// `gain` describe the frame camera.
+pub fn flow_frame(
+    sdr: &SdrImage,
+    sdr_linear: &HdrImage,
+    sources: &[Source],
+    response: &Response,
+    gain: f32,
+    p: &FlowMethodParams,
+) -> Result<(HdrImage, FlowReport)> {
+    let (w, h) = (sdr.width(), sdr.height());
+    if sources.is_empty() {
+        return Err(Error::Invalid(
+            "the flow method needs at least one probe".into(),
+        ));
+    }
+    for s in sources {
+        if s.image.width() != w || s.image.height() != h {
+            return Err(Error::Invalid(format!(
+                "source {} is {}x{} but the frame is {w}x{h}",
+                s.name,
+                s.image.width(),
+                s.image.height()
+            )));
+        }
+    }
+    if sdr_linear.width() != w || sdr_linear.height() != h {
+        return Err(Error::Invalid(
+            "linearised frame and frame differ in size".into(),
+        ));
+    }
+    let mut timings = FlowTimings::default();
+    let t = Instant::now();
+    let frame_disp: Vec<f32> = sdr.data().iter().map(|&c| c as f32 / 255.0).collect();
+    let frame_gray = to_gray8(&frame_disp);
+    let lut = EncodeLut::new(response, gain, 4096);
+    let src_disp: Vec<Vec<f32>> = sources
+        .iter()
+        .map(|s| camera_display(s.image, &lut))
+        .collect();
+    let src_gray: Vec<Vec<u8>> = src_disp.iter().map(|d| to_gray8(d)).collect();
+    timings.tonemap_ms = ms(t);
+
+    // Flow frame -> source (to warp the source onto the frame) and back.
+    let t = Instant::now();
+    let flows: Vec<Result<_>> = {
+        use rayon::prelude::*;
+        src_gray
+            .par_iter()
+            .map(|g| {
+                let fwd = pano_flow(&frame_gray, g, w, h, &p.flow)?;
+                let bwd = pano_flow(g, &frame_gray, w, h, &p.flow)?;
+                Ok((fwd, bwd))
+            })
+            .collect()
+    };
+    let flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
+    timings.flow_ms = ms(t);
+
+    let t = Instant::now();
+    let n_src = sources.len();
+    let n_lab = n_src + 1;
+    let mut warped = Vec::with_capacity(n_src);
+    let mut warped_disp = Vec::with_capacity(n_src);
+    let mut confs = Vec::with_capacity(n_src);
+    for (i, (fwd, bwd)) in flows.iter().enumerate() {
+        let wi = warp_backward(sources[i].image, fwd)?;
+        warped_disp.push(camera_display(&wi, &lut));
+        warped.push(wi);
+        confs.push(confidence(fwd, bwd, &frame_gray, &p.flow));
+    }
+    let dist_sum: f32 = sources.iter().map(|s| s.distance_m.max(0.0)).sum();
+    // Colour term per source: mean absolute display difference to the frame,
+    // optionally averaged over a box window (wrapping across the seam).
+    let dcs: Vec<Vec<f32>> = warped_disp
+        .iter()
+        .map(|wd| {
+            let raw: Vec<f32> = (0..w * h)
+                .map(|px| {
+                    let (d, f) = (&wd[3 * px..3 * px + 3], &frame_disp[3 * px..3 * px + 3]);
+                    ((d[0] - f[0]).abs() + (d[1] - f[1]).abs() + (d[2] - f[2]).abs()) / 3.0
+                })
+                .collect();
+            box_filter(&raw, w, h, p.dc_radius)
+        })
+        .collect();
+    let mut data = vec![0.0f32; w * h * n_lab];
+    let mut features = vec![0.0f32; w * h * n_lab * 3];
+    for px in 0..w * h {
+        let f = &frame_disp[3 * px..3 * px + 3];
+        for i in 0..n_src {
+            let d = &warped_disp[i][3 * px..3 * px + 3];
+            let dc = dcs[i][px];
+            let df = 1.0 - confs[i][px];
+            let dd = if dist_sum > 0.0 {
+                sources[i].distance_m.max(0.0) / dist_sum
+            } else {
+                0.0
+            };
+            let cost = dc + df + dd;
+            let hdr = &warped[i].data()[3 * px..3 * px + 3];
+            let feasible = cost.is_finite() && hdr.iter().all(|v| v.is_finite());
+            data[px * n_lab + i] = if feasible { cost } else { INFEASIBLE };
+            features[(px * n_lab + i) * 3..(px * n_lab + i) * 3 + 3].copy_from_slice(d);
+        }
+        data[px * n_lab + n_src] = p.sdr_cost;
+        features[(px * n_lab + n_src) * 3..(px * n_lab + n_src) * 3 + 3].copy_from_slice(f);
+    }
+    timings.warp_ms = ms(t);
+
+    let t = Instant::now();
+    // The SDR label can be left out when it can never win: its data cost exceeds the
+    // cheapest probe label's by more than the most smoothness a pixel can save (four
+    // edges, each at most twice the largest feature distance, sqrt(3) in display RGB).
+    let max_seam_saving = 4.0 * 2.0 * 3f32.sqrt() * p.lambda;
+    let sdr_needed = (0..w * h).any(|px| {
+        let d = &data[px * n_lab..(px + 1) * n_lab];
+        let best_probe = d[..n_src].iter().cloned().fold(f32::INFINITY, f32::min);
+        d[n_src] <= best_probe + max_seam_saving
+    });
+    let (cut_labels, cut_data, cut_features);
+    let (data_ref, feat_ref) = if sdr_needed {
+        cut_labels = n_lab;
+        (&data[..], &features[..])
+    } else {
+        cut_labels = n_src;
+        cut_data = data
+            .chunks_exact(n_lab)
+            .flat_map(|d| d[..n_src].to_vec())
+            .collect::<Vec<f32>>();
+        cut_features = features
+            .chunks_exact(n_lab * 3)
+            .flat_map(|f| f[..n_src * 3].to_vec())
+            .collect::<Vec<f32>>();
+        (&cut_data[..], &cut_features[..])
+    };
+    let energy = GridEnergy {
+        width: w,
+        height: h,
+        labels: cut_labels,
+        data: data_ref,
+        features: feat_ref,
+        channels: 3,
+        lambda: p.lambda,
+        wrap_x: true,
+    };
+    let (labels, e, ed, es, hist) = if p.no_smoothness {
+        let l = argmin_labels(&energy);
+        let (ed, es) = super::graphcut::energy(&energy, &l)?;
+        (l, ed + es, ed, es, vec![ed + es])
+    } else {
+        let r = optimize(&energy, p.optimizer, p.max_cycles, None)?;
+        (
+            r.labels,
+            r.energy,
+            r.data_energy,
+            r.smooth_energy,
+            r.history,
+        )
+    };
+    timings.graphcut_ms = ms(t);
+
+    let mut out = HdrImage::new(w, h);
+    let mut counts = vec![0usize; n_lab];
+    for px in 0..w * h {
+        let l = labels[px] as usize;
+        counts[l.min(n_lab - 1)] += 1;
+        let v = if l < n_src {
+            &warped[l].data()[3 * px..3 * px + 3]
+        } else {
+            &sdr_linear.data()[3 * px..3 * px + 3]
+        };
+        out.data_mut()[3 * px..3 * px + 3].copy_from_slice(v);
+    }
+    let npx = (w * h).max(1) as f32;
+    let report = FlowReport {
+        labels: sources
+            .iter()
+            .map(|s| s.name.clone())
+            .chain(std::iter::once("sdr".to_string()))
+            .collect(),
+        label_fractions: counts.iter().map(|&c| c as f32 / npx).collect(),
+        mean_confidence: confs.iter().map(|c| c.iter().sum::<f32>() / npx).collect(),
+        mean_flow_px: flows.iter().map(|(f, _)| f.mean_magnitude()).collect(),
+        energy: e,
+        data_energy: ed,
+        smooth_energy: es,
+        energy_history: hist,
+        timings,
+    };
+    Ok((out, report))
+}
