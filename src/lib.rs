@@ -11,6 +11,7 @@ pub mod error;
 pub mod eval;
 pub mod flow;
 pub mod fsutil;
+pub mod fusion;
 pub mod ibl;
 pub mod image;
 pub mod pipeline;

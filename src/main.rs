@@ -122,6 +122,9 @@ struct FlowOpts {
     /// Ablation: cheapest label per pixel, no smoothness.
     #[arg(long)]
     no_smoothness: bool,
+    /// Base method whose output fills clipped regions in `--method fusion`.
+    #[arg(long, value_enum, default_value_t = Method::Flow)]
+    fusion_base: Method,
     /// Box radius over which the colour term is averaged (0 = per pixel).
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_radius)]
     dc_radius: usize,
@@ -359,6 +362,8 @@ fn real_main(cli: Cli) -> Result<()> {
                 size,
                 warp: warp.params(),
                 flow: flow.params(),
+                fusion_base: flow.fusion_base,
+                ..Default::default()
             };
             let report = pipeline::run(
                 &scene,
@@ -435,6 +440,8 @@ fn real_main(cli: Cli) -> Result<()> {
                 size,
                 warp: warp.params(),
                 flow: flow.params(),
+                fusion_base: flow.fusion_base,
+                ..Default::default()
             };
             let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
             if json {

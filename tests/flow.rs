@@ -78,3 +78,64 @@ fn flow_and_hybrid_beat_the_nearest_probe_and_the_cut_beats_its_ablation() {
         assert_eq!(m.invalid_pixels, 0);
     }
 }
+
+#[test]
+fn fusion_keeps_the_frame_and_restores_the_clipped_light() {
+    use lumiprobe::pipeline::evaluate::BASELINE_SDR;
+    let tmp = tempfile::tempdir().unwrap();
+    let p = SynthParams {
+        width: 256,
+        n_frames: 3,
+        n_probes: 3,
+        seed: 8,
+        name: "t".into(),
+        ..Default::default()
+    };
+    let dir = tmp.path().join("scene");
+    synthesize(&p).write(&dir).unwrap();
+    let s = Scene::load(&dir).unwrap();
+    let out = tmp.path().join("fusion");
+    let params = RunParams {
+        method: Method::Fusion,
+        ..Default::default()
+    };
+    let rep = run(&s, &out, &params, &|_, _| {}).unwrap();
+    for f in &rep.frames {
+        let fu = f.fusion.as_ref().expect("fusion report");
+        assert!(
+            fu.sdr_fraction > 0.8 && fu.sdr_fraction < 1.0,
+            "{}",
+            fu.sdr_fraction
+        );
+        assert!(!fu.blobs.is_empty());
+    }
+    let ev = evaluate(&s, &[("fusion".to_string(), out.as_path())]).unwrap();
+    let row = |l: &str| {
+        ev.table
+            .rows
+            .iter()
+            .find(|r| r.label == l)
+            .unwrap()
+            .mean
+            .unwrap()
+    };
+    let (fu, sdr, probe) = (row("fusion"), row(BASELINE_SDR), row(BASELINE_PROBE));
+    assert!(
+        fu.irradiance_rel_err < 0.5 * sdr.irradiance_rel_err,
+        "irradiance {} vs sdr {}",
+        fu.irradiance_rel_err,
+        sdr.irradiance_rel_err
+    );
+    assert!(
+        fu.psnr_tm > probe.psnr_tm,
+        "psnr {} vs {}",
+        fu.psnr_tm,
+        probe.psnr_tm
+    );
+    assert!(
+        fu.log_lum_rmse < probe.log_lum_rmse,
+        "log rmse {} vs probe {}",
+        fu.log_lum_rmse,
+        probe.log_lum_rmse
+    );
+}

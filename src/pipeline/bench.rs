@@ -117,7 +117,7 @@ pub fn bench(
         for _ in 0..repeats.max(1) {
             for (f, sdr, lin, used) in &inputs {
                 let t = Instant::now();
-                let (_, wr, fr) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
+                let (_, wr, fr, _) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 if let Some(w) = wr {
                     add_warp(&mut warp_stages, &w.timings);

@@ -8,6 +8,7 @@ pub mod evaluate;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
+use crate::fusion::{fuse, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
@@ -27,6 +28,9 @@ pub enum Method {
     /// The two neighbours first warped by the warp method, then fused by the flow
     /// method (thesis Fig. 5.11d).
     Hybrid,
+    /// The calibrated SDR frame wherever it did not clip, with the light of its
+    /// clipped regions transferred from the `fusion_base` method's output.
+    Fusion,
 }
 
 impl Method {
@@ -34,7 +38,7 @@ impl Method {
     pub fn probes_needed(self) -> usize {
         match self {
             Method::Warp => 1,
-            Method::Flow | Method::Hybrid => 2,
+            Method::Flow | Method::Hybrid | Method::Fusion => 2,
         }
     }
 }
@@ -50,6 +54,10 @@ pub struct RunParams {
     pub warp: WarpParams,
     /// Flow-method settings.
     pub flow: FlowMethodParams,
+    /// Fusion settings.
+    pub fusion: FusionParams,
+    /// The method whose output fills the clipped regions in [`Method::Fusion`].
+    pub fusion_base: Method,
 }
 
 impl Default for RunParams {
@@ -59,6 +67,8 @@ impl Default for RunParams {
             size: None,
             warp: WarpParams::default(),
             flow: FlowMethodParams::default(),
+            fusion: FusionParams::default(),
+            fusion_base: Method::Flow,
         }
     }
 }
@@ -78,6 +88,9 @@ pub struct FrameRecord {
     pub warp: Option<WarpReport>,
     /// Flow-method details.
     pub flow: Option<FlowReport>,
+    /// Fusion details.
+    #[serde(default)]
+    pub fusion: Option<FusionReport>,
     /// Time for the whole frame, loading excluded, in milliseconds.
     pub total_ms: f64,
     /// Input pixels that were NaN, infinite or negative and were repaired.
@@ -245,7 +258,7 @@ pub fn run(
             let (_, repaired) = get_probe(pi)?;
             let t = Instant::now();
             let lin = linearize(&sdr, scene);
-            let (img, warp_report, flow_report) =
+            let (img, warp_report, flow_report, fusion_report) =
                 predict_frame(scene, frame, &sdr, &lin, &used, &get_probe, params)?;
             let total_ms = t.elapsed().as_secs_f64() * 1e3;
             io::write_hdr(&out, &img)?;
@@ -256,6 +269,7 @@ pub fn run(
                 probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
                 warp: warp_report,
                 flow: flow_report,
+                fusion: fusion_report,
                 total_ms,
                 repaired_pixels: repaired,
                 fingerprint: fp,
@@ -301,14 +315,40 @@ pub fn predict_frame(
     used: &[usize],
     get_probe: &(dyn Fn(usize) -> Result<(Arc<PreparedProbe>, usize)> + Sync),
     params: &RunParams,
-) -> Result<(HdrImage, Option<WarpReport>, Option<FlowReport>)> {
+) -> Result<(
+    HdrImage,
+    Option<WarpReport>,
+    Option<FlowReport>,
+    Option<FusionReport>,
+)> {
     let (w, h) = (sdr.width(), sdr.height());
+    if params.method == Method::Fusion {
+        if params.fusion_base == Method::Fusion {
+            return Err(Error::Invalid(
+                "fusion needs another method as its base".into(),
+            ));
+        }
+        let base = RunParams {
+            method: params.fusion_base,
+            ..params.clone()
+        };
+        let mut base_used = used.to_vec();
+        base_used.truncate(params.fusion_base.probes_needed());
+        let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, get_probe, &base)?;
+        let white = scene
+            .response
+            .decode(params.fusion.clip_code as f32 / 255.0)
+            / scene.path_gain;
+        let (img, rep) = fuse(sdr, lin, &est, white, &params.fusion)?;
+        return Ok((img, wr, fr, Some(rep)));
+    }
     Ok(match params.method {
         Method::Warp => {
             let (probe, _) = get_probe(used[0])?;
             let (img, r) = warp::warp_frame(sdr, lin, &frame.pose, &probe, &params.warp, w, h)?;
-            (img, Some(r), None)
+            (img, Some(r), None, None)
         }
+        Method::Fusion => unreachable!("handled above"),
         Method::Flow | Method::Hybrid => {
             let mut imgs = Vec::with_capacity(used.len());
             let mut first_warp = None;
@@ -341,7 +381,7 @@ pub fn predict_frame(
                 scene.path_gain,
                 &params.flow,
             )?;
-            (img, first_warp, Some(r))
+            (img, first_warp, Some(r), None)
         }
     })
 }

@@ -1,0 +1,554 @@
+//! Radiometric fusion: the calibrated SDR frame is kept wherever it measured
+//! radiance (below the white point), and only its clipped regions — the lamps,
+//! windows and sun that carry most of the light — are filled from an aligned HDR
+//! estimate (the output of the warp, flow or hybrid method). The light of each
+//! clipped region is transferred as a source: the estimate's power above the white
+//! point around the region is placed inside it, so a lamp that the estimate puts a
+//! few pixels off still lights the scene with the right power from the right place.
+
+use crate::error::{Error, Result};
+use crate::image::{luminance, HdrImage, SdrImage};
+use crate::sphere::row_solid_angles;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the fusion.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FusionParams {
+    /// 8-bit code from which a channel counts as clipped.
+    pub clip_code: u8,
+    /// Safety margin in pixels grown around clipped regions.
+    pub margin_px: usize,
+    /// Radius, as a fraction of the panorama width, around a clipped region within
+    /// which the estimate's light is attributed to it.
+    pub search_frac: f32,
+    /// Width in pixels of the log-domain cross-fade at the edge of filled regions.
+    pub feather_px: usize,
+    /// What a clipped region inherits from the estimate's light.
+    pub transfer: Transfer,
+}
+
+/// How the estimate's light is carried into a clipped region.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Transfer {
+    /// Keep the source's radiance (invariant along rays): the region receives the
+    /// estimate's mean excess radiance over the region's own solid angle, so a lamp
+    /// the frame sees larger than the probe did gets proportionally more power.
+    Radiance,
+    /// Keep the source's power as the estimate has it.
+    Power,
+}
+
+impl Default for FusionParams {
+    fn default() -> Self {
+        FusionParams {
+            clip_code: 250,
+            margin_px: 1,
+            search_frac: 0.03,
+            feather_px: 2,
+            transfer: Transfer::Power,
+        }
+    }
+}
+
+/// What happened to one clipped region.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BlobReport {
+    /// Pixels in the region (after the margin).
+    pub pixels: usize,
+    /// Solid angle of the region in steradians.
+    pub solid_angle_sr: f64,
+    /// Centre (column, row) of the region.
+    pub centre: (f32, f32),
+    /// How far the estimate had the region's light, in pixels (columns, rows).
+    pub shift_px: (f32, f32),
+    /// Power (radiance x solid angle, luminance) the estimate gives the region and
+    /// its surroundings above the white point.
+    pub estimate_power: f64,
+    /// Solid angle of the estimate's light above the white point around the region.
+    pub estimate_solid_angle_sr: f64,
+    /// Power placed inside the region.
+    pub filled_power: f64,
+    /// False when the estimate has no light near the region (filled at the white
+    /// point, a lower bound).
+    pub matched: bool,
+}
+
+/// What the fusion did for one frame.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FusionReport {
+    /// Fraction of pixels taken from the SDR frame.
+    pub sdr_fraction: f32,
+    /// The clipped regions.
+    pub blobs: Vec<BlobReport>,
+    /// Clipped regions without a counterpart in the estimate.
+    pub unmatched: usize,
+}
+
+/// Clipped pixels (any channel at or above `clip_code`), grown by `margin` pixels.
+pub fn clip_mask(sdr: &SdrImage, clip_code: u8, margin: usize) -> Vec<bool> {
+    let (w, h) = (sdr.width(), sdr.height());
+    let mut m: Vec<bool> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= clip_code))
+        .collect();
+    for _ in 0..margin {
+        let prev = m.clone();
+        for y in 0..h {
+            for x in 0..w {
+                if prev[y * w + x] {
+                    continue;
+                }
+                let l = (x + w - 1) % w;
+                let r = (x + 1) % w;
+                let up = y > 0 && prev[(y - 1) * w + x];
+                let down = y + 1 < h && prev[(y + 1) * w + x];
+                if prev[y * w + l] || prev[y * w + r] || up || down {
+                    m[y * w + x] = true;
+                }
+            }
+        }
+    }
+    m
+}
+
+/// Connected components (4-neighbours, wrapping across the seam) of a mask; returns
+/// a label per pixel (`u32::MAX` outside) and the number of components.
+pub fn components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, usize) {
+    let mut lab = vec![u32::MAX; w * h];
+    let mut n = 0u32;
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if !mask[start] || lab[start] != u32::MAX {
+            continue;
+        }
+        lab[start] = n;
+        stack.push(start);
+        while let Some(p) = stack.pop() {
+            let (x, y) = (p % w, p / w);
+            let mut nb = [usize::MAX; 4];
+            nb[0] = y * w + (x + w - 1) % w;
+            nb[1] = y * w + (x + 1) % w;
+            if y > 0 {
+                nb[2] = p - w;
+            }
+            if y + 1 < h {
+                nb[3] = p + w;
+            }
+            for q in nb {
+                if q != usize::MAX && mask[q] && lab[q] == u32::MAX {
+                    lab[q] = n;
+                    stack.push(q);
+                }
+            }
+        }
+        n += 1;
+    }
+    (lab, n as usize)
+}
+
+/// Fuses the SDR frame's radiance `sdr_linear` (codes in `sdr`) with an aligned HDR
+/// `estimate`. `white` is the radiance at which the SDR frame clips.
+pub fn fuse(
+    sdr: &SdrImage,
+    sdr_linear: &HdrImage,
+    estimate: &HdrImage,
+    white: f32,
+    p: &FusionParams,
+) -> Result<(HdrImage, FusionReport)> {
+    let (w, h) = (sdr.width(), sdr.height());
+    for (name, img) in [("linearised frame", sdr_linear), ("estimate", estimate)] {
+        if img.width() != w || img.height() != h {
+            return Err(Error::Invalid(format!(
+                "{name} is {}x{} but the frame is {w}x{h}",
+                img.width(),
+                img.height()
+            )));
+        }
+    }
+    let white = if white.is_finite() && white > 0.0 {
+        white
+    } else {
+        1.0
+    };
+    let mask = clip_mask(sdr, p.clip_code, p.margin_px);
+    let (lab, n) = components(&mask, w, h);
+    let sa = row_solid_angles(w, h);
+    let mut out = sdr_linear.clone();
+    let mut report = FusionReport::default();
+
+    // Attribute every estimate pixel above the white point to the nearest clipped
+    // region within the search radius (multi-source BFS over the pixel grid).
+    let radius = ((w as f32 * p.search_frac).round() as usize).max(1);
+    let mut owner = lab.clone();
+    let mut dist = vec![u32::MAX; w * h];
+    let mut frontier: Vec<usize> = (0..w * h).filter(|&i| lab[i] != u32::MAX).collect();
+    for &i in &frontier {
+        dist[i] = 0;
+    }
+    for d in 1..=radius as u32 {
+        let mut next = Vec::new();
+        for &pix in &frontier {
+            let (x, y) = (pix % w, pix / w);
+            let mut nb = vec![y * w + (x + w - 1) % w, y * w + (x + 1) % w];
+            if y > 0 {
+                nb.push(pix - w);
+            }
+            if y + 1 < h {
+                nb.push(pix + w);
+            }
+            for q in nb {
+                if dist[q] == u32::MAX {
+                    dist[q] = d;
+                    owner[q] = owner[pix];
+                    next.push(q);
+                }
+            }
+        }
+        frontier = next;
+    }
+    // Per region: the estimate's power above the white point in its neighbourhood,
+    // and the centroids of that light and of the region (relative to a reference
+    // pixel so regions across the seam average correctly).
+    let mut est_power = vec![0.0f64; n];
+    let mut est_area = vec![0.0f64; n];
+    let mut est_c = vec![(0.0f64, 0.0f64); n];
+    let mut area = vec![0.0f64; n];
+    let mut count = vec![0usize; n];
+    let mut blob_c = vec![(0.0f64, 0.0f64); n];
+    let mut reference = vec![usize::MAX; n];
+    for i in 0..w * h {
+        if lab[i] != u32::MAX && reference[lab[i] as usize] == usize::MAX {
+            reference[lab[i] as usize] = i % w;
+        }
+    }
+    let rel_x = |x: usize, r: usize| -> f64 {
+        let d = (x as i64 - r as i64).rem_euclid(w as i64);
+        (if d > (w / 2) as i64 { d - w as i64 } else { d }) as f64
+    };
+    for i in 0..w * h {
+        let o = owner[i];
+        if o == u32::MAX {
+            continue;
+        }
+        let o = o as usize;
+        let (x, y) = (i % w, i / w);
+        let l = luminance(estimate.get(x, y)) as f64;
+        if l > white as f64 {
+            let m = (l - white as f64) * sa[y] as f64;
+            est_power[o] += m;
+            est_area[o] += sa[y] as f64;
+            est_c[o].0 += m * rel_x(x, reference[o]);
+            est_c[o].1 += m * y as f64;
+        }
+        if lab[i] != u32::MAX {
+            area[o] += sa[y] as f64;
+            count[o] += 1;
+            blob_c[o].0 += rel_x(x, reference[o]);
+            blob_c[o].1 += y as f64;
+        }
+    }
+    // Shift of each region's light in the estimate relative to the region itself.
+    let shift: Vec<(f32, f32)> = (0..n)
+        .map(|o| {
+            if est_power[o] <= 0.0 || count[o] == 0 {
+                return (0.0, 0.0);
+            }
+            let c = count[o] as f64;
+            (
+                (est_c[o].0 / est_power[o] - blob_c[o].0 / c) as f32,
+                (est_c[o].1 / est_power[o] - blob_c[o].1 / c) as f32,
+            )
+        })
+        .collect();
+    // Power each region receives.
+    let target_power: Vec<f64> = (0..n)
+        .map(|o| match p.transfer {
+            Transfer::Power => est_power[o],
+            Transfer::Radiance if est_area[o] > 0.0 => est_power[o] / est_area[o] * area[o],
+            Transfer::Radiance => 0.0,
+        })
+        .collect();
+    // The estimate's light, moved onto the region, gives the shape of the fill.
+    let shifted = |i: usize| -> [f32; 3] {
+        let o = lab[i] as usize;
+        let (x, y) = (i % w, i / w);
+        crate::sphere::sample_px(
+            estimate,
+            x as f32 + 0.5 + shift[o].0,
+            y as f32 + 0.5 + shift[o].1,
+        )
+    };
+    let mut inside = vec![0.0f64; n];
+    for i in 0..w * h {
+        if lab[i] != u32::MAX {
+            let o = lab[i] as usize;
+            inside[o] += (luminance(shifted(i)) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
+        }
+    }
+    // Fill: the white point plus the shifted excess, rescaled so the region receives
+    // the power attributed to it; spread evenly when the shifted light misses it.
+    for i in 0..w * h {
+        if lab[i] == u32::MAX {
+            continue;
+        }
+        let o = lab[i] as usize;
+        let (x, y) = (i % w, i / w);
+        let e = shifted(i);
+        let le = luminance(e).max(0.0);
+        let excess = (le - white).max(0.0) as f64;
+        let add = if inside[o] > 0.0 {
+            excess * target_power[o] / inside[o]
+        } else if area[o] > 0.0 {
+            target_power[o] / area[o]
+        } else {
+            0.0
+        };
+        let target = white as f64 + add;
+        // Colour from the estimate where it has one, else from the SDR pixel.
+        let colour = if le > 1e-12 { e } else { sdr_linear.get(x, y) };
+        let lc = luminance(colour).max(1e-12) as f64;
+        let s = sdr_linear.get(x, y);
+        let mut v = [0.0f32; 3];
+        for k in 0..3 {
+            // Never below what the SDR frame measured (clipping only lowers values).
+            v[k] = ((colour[k] as f64 * target / lc) as f32).max(s[k]);
+        }
+        out.set(x, y, v);
+    }
+    for o in 0..n {
+        let filled: f64 = (0..w * h)
+            .filter(|&i| lab[i] as usize == o && lab[i] != u32::MAX)
+            .map(|i| {
+                (luminance(out.get(i % w, i / w)) as f64 - white as f64).max(0.0) * sa[i / w] as f64
+            })
+            .sum();
+        let c = count[o].max(1) as f64;
+        report.blobs.push(BlobReport {
+            pixels: count[o],
+            solid_angle_sr: area[o],
+            centre: (
+                ((blob_c[o].0 / c + reference[o] as f64).rem_euclid(w as f64)) as f32,
+                (blob_c[o].1 / c) as f32,
+            ),
+            shift_px: shift[o],
+            estimate_power: est_power[o],
+            estimate_solid_angle_sr: est_area[o],
+            filled_power: filled,
+            matched: est_power[o] > 0.0,
+        });
+    }
+    report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();
+    feather(&mut out, estimate, &mask, w, h, p.feather_px);
+    report.sdr_fraction = mask.iter().filter(|&&m| !m).count() as f32 / (w * h).max(1) as f32;
+    Ok((out, report))
+}
+
+/// Softens the edge of filled regions: unclipped pixels within `px` of a filled one
+/// take a log-domain blend with the estimate, never below the SDR value.
+fn feather(out: &mut HdrImage, estimate: &HdrImage, mask: &[bool], w: usize, h: usize, px: usize) {
+    if px == 0 {
+        return;
+    }
+    let mut dist = vec![usize::MAX; w * h];
+    let mut frontier: Vec<usize> = (0..w * h).filter(|&i| mask[i]).collect();
+    for &i in &frontier {
+        dist[i] = 0;
+    }
+    for d in 1..=px {
+        let mut next = Vec::new();
+        for &pix in &frontier {
+            let (x, y) = (pix % w, pix / w);
+            let mut nb = vec![y * w + (x + w - 1) % w, y * w + (x + 1) % w];
+            if y > 0 {
+                nb.push(pix - w);
+            }
+            if y + 1 < h {
+                nb.push(pix + w);
+            }
+            for q in nb {
+                if dist[q] == usize::MAX {
+                    dist[q] = d;
+                    next.push(q);
+                }
+            }
+        }
+        frontier = next;
+    }
+    for i in 0..w * h {
+        let d = dist[i];
+        if d == 0 || d == usize::MAX {
+            continue;
+        }
+        let t = 0.5 * (1.0 - d as f32 / (px + 1) as f32); // weight of the estimate
+        let (x, y) = (i % w, i / w);
+        let (s, e) = (out.get(x, y), estimate.get(x, y));
+        let mut v = [0.0f32; 3];
+        for k in 0..3 {
+            let (ls, le) = ((s[k].max(1e-9)).ln(), (e[k].max(1e-9)).ln());
+            v[k] = ((1.0 - t) * ls + t * le).exp().max(s[k]);
+        }
+        out.set(x, y, v);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame_with_lamp(w: usize, h: usize, lamp: (usize, usize), r: usize) -> (SdrImage, HdrImage) {
+        let mut codes = vec![100u8; w * h * 3];
+        let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        for y in lamp.1 - r..=lamp.1 + r {
+            for x in lamp.0 - r..=lamp.0 + r {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 255]);
+                lin.set(x, y, [1.0, 1.0, 1.0]);
+            }
+        }
+        (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+    }
+
+    fn power_above(img: &HdrImage, white: f32) -> f64 {
+        let sa = row_solid_angles(img.width(), img.height());
+        (0..img.width() * img.height())
+            .map(|i| {
+                (luminance(img.get(i % img.width(), i / img.width())) - white).max(0.0) as f64
+                    * sa[i / img.width()] as f64
+            })
+            .sum()
+    }
+
+    #[test]
+    fn a_shifted_lamp_lands_in_the_clipped_region_with_its_power() {
+        let (w, h) = (128, 64);
+        let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
+        // The estimate puts the same lamp 3 pixels to the right.
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (41..=45).contains(&x) && (18..=22).contains(&y) {
+                [500.0, 400.0, 300.0]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let p = FusionParams {
+            margin_px: 0,
+            feather_px: 0,
+            transfer: Transfer::Power,
+            ..Default::default()
+        };
+        let (out, rep) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
+        assert_eq!(rep.blobs.len(), 1);
+        assert!(rep.blobs[0].matched);
+        let (pe, po) = (power_above(&est, 1.0), power_above(&out, 1.0));
+        assert!((po - pe).abs() / pe < 0.02, "power {po} vs {pe}");
+        // The light sits where the frame saw it, not where the estimate put it.
+        assert!(luminance(out.get(38, 20)) > 100.0);
+        assert!(luminance(out.get(45, 20)) < 1.0);
+        // The estimate's colour is kept.
+        let c = out.get(40, 20);
+        assert!(c[0] > c[1] && c[1] > c[2]);
+    }
+
+    #[test]
+    fn radiance_transfer_scales_power_with_the_regions_solid_angle() {
+        let (w, h) = (128, 64);
+        // The frame sees the lamp 5x5; the estimate (from a farther probe) 3x3.
+        let (sdr, lin) = frame_with_lamp(w, h, (60, 32), 2);
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (59..=61).contains(&x) && (31..=33).contains(&y) {
+                [101.0, 101.0, 101.0]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let p = FusionParams {
+            margin_px: 0,
+            feather_px: 0,
+            transfer: Transfer::Radiance,
+            ..Default::default()
+        };
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
+        let ratio = power_above(&out, 1.0) / power_above(&est, 1.0);
+        assert!((ratio - 25.0 / 9.0).abs() < 0.05, "power ratio {ratio}");
+    }
+
+    #[test]
+    fn no_clipping_means_the_calibrated_frame() {
+        let (w, h) = (64, 32);
+        let sdr = SdrImage::from_vec(w, h, vec![120; w * h * 3]).unwrap();
+        let lin = HdrImage::from_fn(w, h, |x, _| [0.1 + x as f32 * 0.01, 0.2, 0.3]);
+        let est = HdrImage::from_fn(w, h, |_, _| [9.0, 9.0, 9.0]);
+        let (out, rep) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        assert_eq!(out, lin);
+        assert!(rep.blobs.is_empty() && rep.sdr_fraction == 1.0);
+    }
+
+    #[test]
+    fn entirely_clipped_frames_fall_back_to_the_estimate_cleanly() {
+        let (w, h) = (64, 32);
+        let sdr = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
+        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
+        let est = HdrImage::from_fn(w, h, |x, _| {
+            if x == 3 {
+                [50.0, 50.0, 50.0]
+            } else {
+                [2.0, 2.0, 2.0]
+            }
+        });
+        let (out, rep) = fuse(
+            &sdr,
+            &lin,
+            &est,
+            1.0,
+            &FusionParams {
+                transfer: Transfer::Power,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(out.count_invalid(), 0);
+        assert_eq!(rep.blobs.len(), 1);
+        let (pe, po) = (power_above(&est, 1.0), power_above(&out, 1.0));
+        assert!((po - pe).abs() / pe < 1e-3, "power {po} vs {pe}");
+        assert!(out.data().iter().all(|&v| v >= 1.0));
+    }
+
+    #[test]
+    fn a_sun_a_million_times_the_median_stays_finite_and_keeps_its_power() {
+        let (w, h) = (256, 128);
+        let (sdr, lin) = frame_with_lamp(w, h, (100, 30), 1);
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if x == 101 && y == 30 {
+                [2e5, 2e5, 2e5]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let (out, rep) = fuse(
+            &sdr,
+            &lin,
+            &est,
+            1.0,
+            &FusionParams {
+                transfer: Transfer::Power,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(out.count_invalid(), 0);
+        let (pe, po) = (power_above(&est, 1.0), power_above(&out, 1.0));
+        assert!((po - pe).abs() / pe < 0.02, "power {po} vs {pe}");
+        assert_eq!(rep.unmatched, 0);
+    }
+
+    #[test]
+    fn a_clipped_region_without_counterpart_is_reported() {
+        let (w, h) = (64, 32);
+        let (sdr, lin) = frame_with_lamp(w, h, (20, 10), 1);
+        let est = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        let (out, rep) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        assert_eq!(rep.unmatched, 1);
+        assert!(luminance(out.get(20, 10)) >= 1.0 - 1e-6);
+    }
+}
