@@ -456,13 +456,13 @@ fn real_main(cli: Cli) -> Result<()> {
                     "{} {}x{} {:?}, {} thread(s), {} frames x {}: mean {:.1} ms/frame (median {:.1})",
                     r.scene, r.size.0, r.size.1, r.method, r.threads, r.frames, r.repeats, r.mean_ms, r.median_ms
                 );
-                if method != Method::Flow {
+                if ws.features_ms + ws.warp_stitch_ms > 0.0 {
                     println!(
                         "  warp: tonemap {:.1}, features {:.1}, matching {:.1}, warp+stitch {:.1} ms",
                         ws.tonemap_ms, ws.features_ms, ws.matching_ms, ws.warp_stitch_ms
                     );
                 }
-                if method != Method::Warp {
+                if fs.flow_ms + fs.graphcut_ms > 0.0 {
                     println!(
                         "  flow: tonemap {:.1}, flow {:.1}, warp+costs {:.1}, graph cut {:.1} ms",
                         fs.tonemap_ms, fs.flow_ms, fs.warp_ms, fs.graphcut_ms
