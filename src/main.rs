@@ -125,6 +125,9 @@ struct FlowOpts {
     /// Base method whose output fills clipped regions in `--method fusion`.
     #[arg(long, value_enum, default_value_t = Method::Flow)]
     fusion_base: Method,
+    /// What a clipped region inherits from the base method's light in `--method fusion`.
+    #[arg(long, value_enum, default_value_t = lumiprobe::fusion::FusionParams::default().transfer)]
+    fusion_transfer: lumiprobe::fusion::Transfer,
     /// Box radius over which the colour term is averaged (0 = per pixel).
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_radius)]
     dc_radius: usize,
@@ -363,6 +366,10 @@ fn real_main(cli: Cli) -> Result<()> {
                 warp: warp.params(),
                 flow: flow.params(),
                 fusion_base: flow.fusion_base,
+                fusion: lumiprobe::fusion::FusionParams {
+                    transfer: flow.fusion_transfer,
+                    ..Default::default()
+                },
                 ..Default::default()
             };
             let report = pipeline::run(
@@ -441,6 +448,10 @@ fn real_main(cli: Cli) -> Result<()> {
                 warp: warp.params(),
                 flow: flow.params(),
                 fusion_base: flow.fusion_base,
+                fusion: lumiprobe::fusion::FusionParams {
+                    transfer: flow.fusion_transfer,
+                    ..Default::default()
+                },
                 ..Default::default()
             };
             let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;

@@ -18,9 +18,12 @@ pub struct FusionParams {
     pub clip_code: u8,
     /// Safety margin in pixels grown around clipped regions.
     pub margin_px: usize,
-    /// Radius, as a fraction of the panorama width, around a clipped region within
-    /// which the estimate's light is attributed to it.
-    pub search_frac: f32,
+    /// Clipped specks smaller than this many pixels (sensor noise on bright
+    /// surfaces) are kept from the SDR frame rather than treated as light sources.
+    pub min_core_px: usize,
+    /// Largest angle between a light in the estimate and a clipped region for the
+    /// light to be attributed to that region.
+    pub max_angle_deg: f32,
     /// Width in pixels of the log-domain cross-fade at the edge of filled regions.
     pub feather_px: usize,
     /// What a clipped region inherits from the estimate's light.
@@ -44,7 +47,8 @@ impl Default for FusionParams {
         FusionParams {
             clip_code: 250,
             margin_px: 1,
-            search_frac: 0.03,
+            min_core_px: 3,
+            max_angle_deg: 30.0,
             feather_px: 2,
             transfer: Transfer::Power,
         }
@@ -85,14 +89,29 @@ pub struct FusionReport {
     pub unmatched: usize,
 }
 
-/// Clipped pixels (any channel at or above `clip_code`), grown by `margin` pixels.
-pub fn clip_mask(sdr: &SdrImage, clip_code: u8, margin: usize) -> Vec<bool> {
+/// Clipped pixels (any channel at or above `clip_code`) in regions of at least
+/// `min_core` pixels, grown by `margin` pixels.
+pub fn clip_mask(sdr: &SdrImage, clip_code: u8, min_core: usize, margin: usize) -> Vec<bool> {
     let (w, h) = (sdr.width(), sdr.height());
     let mut m: Vec<bool> = sdr
         .data()
         .chunks_exact(3)
         .map(|c| c.iter().any(|&v| v >= clip_code))
         .collect();
+    if min_core > 1 {
+        let (lab, n) = components(&m, w, h);
+        let mut size = vec![0usize; n];
+        for &l in &lab {
+            if l != u32::MAX {
+                size[l as usize] += 1;
+            }
+        }
+        for (v, &l) in m.iter_mut().zip(&lab) {
+            if l != u32::MAX && size[l as usize] < min_core {
+                *v = false;
+            }
+        }
+    }
     for _ in 0..margin {
         let prev = m.clone();
         for y in 0..h {
@@ -172,42 +191,55 @@ pub fn fuse(
     } else {
         1.0
     };
-    let mask = clip_mask(sdr, p.clip_code, p.margin_px);
+    let core = clip_mask(sdr, p.clip_code, p.min_core_px, 0);
+    let mask = clip_mask(sdr, p.clip_code, p.min_core_px, p.margin_px);
     let (lab, n) = components(&mask, w, h);
     let sa = row_solid_angles(w, h);
     let mut out = sdr_linear.clone();
     let mut report = FusionReport::default();
 
-    // Attribute every estimate pixel above the white point to the nearest clipped
-    // region within the search radius (multi-source BFS over the pixel grid).
-    let radius = ((w as f32 * p.search_frac).round() as usize).max(1);
-    let mut owner = lab.clone();
-    let mut dist = vec![u32::MAX; w * h];
-    let mut frontier: Vec<usize> = (0..w * h).filter(|&i| lab[i] != u32::MAX).collect();
-    for &i in &frontier {
-        dist[i] = 0;
+    // Attribute each light of the estimate (a connected region above the white
+    // point) to the clipped region nearest in direction, within `max_angle_deg`.
+    let dirs = |i: usize| crate::sphere::pixel_to_dir(i % w, i / w, w, h);
+    let bright: Vec<bool> = (0..w * h)
+        .map(|i| luminance(estimate.get(i % w, i / w)) > white)
+        .collect();
+    let (elab, en) = components(&bright, w, h);
+    let mut blob_dir = vec![glam::Vec3::ZERO; n];
+    let mut light_dir = vec![glam::Vec3::ZERO; en];
+    for i in 0..w * h {
+        if lab[i] != u32::MAX {
+            blob_dir[lab[i] as usize] += dirs(i) * sa[i / w];
+        }
+        if elab[i] != u32::MAX {
+            let m = (luminance(estimate.get(i % w, i / w)) - white).max(0.0) * sa[i / w];
+            light_dir[elab[i] as usize] += dirs(i) * m;
+        }
     }
-    for d in 1..=radius as u32 {
-        let mut next = Vec::new();
-        for &pix in &frontier {
-            let (x, y) = (pix % w, pix / w);
-            let mut nb = vec![y * w + (x + w - 1) % w, y * w + (x + 1) % w];
-            if y > 0 {
-                nb.push(pix - w);
-            }
-            if y + 1 < h {
-                nb.push(pix + w);
-            }
-            for q in nb {
-                if dist[q] == u32::MAX {
-                    dist[q] = d;
-                    owner[q] = owner[pix];
-                    next.push(q);
+    let cos_max = p.max_angle_deg.to_radians().cos();
+    let light_owner: Vec<u32> = light_dir
+        .iter()
+        .map(|ld| {
+            let ld = ld.normalize_or_zero();
+            let mut best = (u32::MAX, cos_max);
+            for (b, bd) in blob_dir.iter().enumerate() {
+                let c = ld.dot(bd.normalize_or_zero());
+                if c >= best.1 {
+                    best = (b as u32, c);
                 }
             }
-        }
-        frontier = next;
-    }
+            best.0
+        })
+        .collect();
+    let owner: Vec<u32> = (0..w * h)
+        .map(|i| {
+            if elab[i] != u32::MAX {
+                light_owner[elab[i] as usize]
+            } else {
+                u32::MAX
+            }
+        })
+        .collect();
     // Per region: the estimate's power above the white point in its neighbourhood,
     // and the centroids of that light and of the region (relative to a reference
     // pixel so regions across the seam average correctly).
@@ -215,6 +247,7 @@ pub fn fuse(
     let mut est_area = vec![0.0f64; n];
     let mut est_c = vec![(0.0f64, 0.0f64); n];
     let mut area = vec![0.0f64; n];
+    let mut core_area = vec![0.0f64; n];
     let mut count = vec![0usize; n];
     let mut blob_c = vec![(0.0f64, 0.0f64); n];
     let mut reference = vec![usize::MAX; n];
@@ -228,22 +261,22 @@ pub fn fuse(
         (if d > (w / 2) as i64 { d - w as i64 } else { d }) as f64
     };
     for i in 0..w * h {
-        let o = owner[i];
-        if o == u32::MAX {
-            continue;
-        }
-        let o = o as usize;
         let (x, y) = (i % w, i / w);
-        let l = luminance(estimate.get(x, y)) as f64;
-        if l > white as f64 {
-            let m = (l - white as f64) * sa[y] as f64;
+        if owner[i] != u32::MAX {
+            let o = owner[i] as usize;
+            let l = luminance(estimate.get(x, y)) as f64;
+            let m = (l - white as f64).max(0.0) * sa[y] as f64;
             est_power[o] += m;
             est_area[o] += sa[y] as f64;
             est_c[o].0 += m * rel_x(x, reference[o]);
             est_c[o].1 += m * y as f64;
         }
         if lab[i] != u32::MAX {
+            let o = lab[i] as usize;
             area[o] += sa[y] as f64;
+            if core[i] {
+                core_area[o] += sa[y] as f64;
+            }
             count[o] += 1;
             blob_c[o].0 += rel_x(x, reference[o]);
             blob_c[o].1 += y as f64;
@@ -266,7 +299,7 @@ pub fn fuse(
     let target_power: Vec<f64> = (0..n)
         .map(|o| match p.transfer {
             Transfer::Power => est_power[o],
-            Transfer::Radiance if est_area[o] > 0.0 => est_power[o] / est_area[o] * area[o],
+            Transfer::Radiance if est_area[o] > 0.0 => est_power[o] / est_area[o] * core_area[o],
             Transfer::Radiance => 0.0,
         })
         .collect();
