@@ -282,6 +282,26 @@ enum Operator {
     Exposure,
 }
 
+/// Settings of a run from the command line's method, size and option groups.
+fn run_params(
+    method: Method,
+    size: Option<(usize, usize)>,
+    warp: &WarpOpts,
+    flow: &FlowOpts,
+) -> RunParams {
+    RunParams {
+        method,
+        size,
+        warp: warp.params(),
+        flow: flow.params(),
+        fusion_base: flow.fusion_base,
+        fusion: lumiprobe::fusion::FusionParams {
+            transfer: flow.fusion_transfer,
+            ..Default::default()
+        },
+    }
+}
+
 fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -360,18 +380,7 @@ fn real_main(cli: Cli) -> Result<()> {
             for w in &scene.warnings {
                 eprintln!("warning: {w}");
             }
-            let params = RunParams {
-                method,
-                size,
-                warp: warp.params(),
-                flow: flow.params(),
-                fusion_base: flow.fusion_base,
-                fusion: lumiprobe::fusion::FusionParams {
-                    transfer: flow.fusion_transfer,
-                    ..Default::default()
-                },
-                ..Default::default()
-            };
+            let params = run_params(method, size, &warp, &flow);
             let report = pipeline::run(
                 &scene,
                 &out,
@@ -442,18 +451,7 @@ fn real_main(cli: Cli) -> Result<()> {
             flow,
         } => {
             let scene = Scene::load(&scene)?;
-            let params = RunParams {
-                method,
-                size,
-                warp: warp.params(),
-                flow: flow.params(),
-                fusion_base: flow.fusion_base,
-                fusion: lumiprobe::fusion::FusionParams {
-                    transfer: flow.fusion_transfer,
-                    ..Default::default()
-                },
-                ..Default::default()
-            };
+            let params = run_params(method, size, &warp, &flow);
             let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
             if json {
                 println!(
