@@ -6,6 +6,8 @@
 //! point around the region is placed inside it, so a lamp that the estimate puts a
 //! few pixels off still lights the scene with the right power from the right place.
 
+pub mod lights;
+
 use crate::error::{Error, Result};
 use crate::image::{luminance, HdrImage, SdrImage};
 use crate::sphere::row_solid_angles;
@@ -28,6 +30,11 @@ pub struct FusionParams {
     pub feather_px: usize,
     /// What a clipped region inherits from the estimate's light.
     pub transfer: Transfer,
+    /// Place lights seen by two probes in 3-D and give clipped regions the power
+    /// those lights have at the frame's position.
+    pub place_lights: bool,
+    /// Largest gap in metres between two probes' rays for them to be one light.
+    pub max_gap_m: f32,
 }
 
 /// How the estimate's light is carried into a clipped region.
@@ -51,6 +58,8 @@ impl Default for FusionParams {
             max_angle_deg: 30.0,
             feather_px: 2,
             transfer: Transfer::Power,
+            place_lights: true,
+            max_gap_m: 0.25,
         }
     }
 }
@@ -76,6 +85,9 @@ pub struct BlobReport {
     /// False when the estimate has no light near the region (filled at the white
     /// point, a lower bound).
     pub matched: bool,
+    /// True when the power came from lights placed in 3-D from two probes.
+    #[serde(default)]
+    pub placed: bool,
 }
 
 /// What the fusion did for one frame.
@@ -174,6 +186,21 @@ pub fn fuse(
     sdr_linear: &HdrImage,
     estimate: &HdrImage,
     white: f32,
+    p: &FusionParams,
+) -> Result<(HdrImage, FusionReport)> {
+    fuse_with_lights(sdr, sdr_linear, estimate, white, &[], p)
+}
+
+/// Like [`fuse`], with lights placed in 3-D ([`lights`]) given as `(direction in the
+/// frame's camera axes, power above the white point at the frame)`: a clipped region
+/// that contains (or is nearest, within `max_angle_deg`, to) such lights receives their
+/// power instead of the estimate's.
+pub fn fuse_with_lights(
+    sdr: &SdrImage,
+    sdr_linear: &HdrImage,
+    estimate: &HdrImage,
+    white: f32,
+    placed: &[(glam::Vec3, f64)],
     p: &FusionParams,
 ) -> Result<(HdrImage, FusionReport)> {
     let (w, h) = (sdr.width(), sdr.height());
@@ -296,11 +323,48 @@ pub fn fuse(
         })
         .collect();
     // Power each region receives.
+    // Lights placed in 3-D, assigned to the region they fall in or the nearest one.
+    let mut anchor_power = vec![0.0f64; n];
+    let mut anchored = vec![false; n];
+    for &(d, pw) in placed {
+        if !(pw.is_finite() && pw > 0.0) || !d.is_finite() {
+            continue;
+        }
+        let (u, v) = crate::sphere::dir_to_uv(d);
+        let (x, y) = (
+            ((u * w as f32) as usize).min(w - 1),
+            ((v * h as f32) as usize).min(h - 1),
+        );
+        let mut target = lab[y * w + x];
+        if target == u32::MAX {
+            let dn = d.normalize_or_zero();
+            let mut best = cos_max;
+            for (b, bd) in blob_dir.iter().enumerate() {
+                let c = dn.dot(bd.normalize_or_zero());
+                if c >= best {
+                    best = c;
+                    target = b as u32;
+                }
+            }
+        }
+        if target != u32::MAX {
+            anchor_power[target as usize] += pw;
+            anchored[target as usize] = true;
+        }
+    }
     let target_power: Vec<f64> = (0..n)
-        .map(|o| match p.transfer {
-            Transfer::Power => est_power[o],
-            Transfer::Radiance if est_area[o] > 0.0 => est_power[o] / est_area[o] * core_area[o],
-            Transfer::Radiance => 0.0,
+        .map(|o| {
+            if anchored[o] {
+                anchor_power[o]
+            } else {
+                match p.transfer {
+                    Transfer::Power => est_power[o],
+                    Transfer::Radiance if est_area[o] > 0.0 => {
+                        est_power[o] / est_area[o] * core_area[o]
+                    }
+                    Transfer::Radiance => 0.0,
+                }
+            }
         })
         .collect();
     // The estimate's light, moved onto the region, gives the shape of the fill.
@@ -369,7 +433,8 @@ pub fn fuse(
             estimate_power: est_power[o],
             estimate_solid_angle_sr: est_area[o],
             filled_power: filled,
-            matched: est_power[o] > 0.0,
+            matched: est_power[o] > 0.0 || anchored[o],
+            placed: anchored[o],
         });
     }
     report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();

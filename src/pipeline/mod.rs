@@ -8,7 +8,8 @@ pub mod evaluate;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
-use crate::fusion::{fuse, FusionParams, FusionReport};
+use crate::fusion::lights::{find_lights, triangulate};
+use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
@@ -339,7 +340,25 @@ pub fn predict_frame(
             .response
             .decode(params.fusion.clip_code as f32 / 255.0)
             / scene.path_gain;
-        let (img, rep) = fuse(sdr, lin, &est, white, &params.fusion)?;
+        // Lights seen by both probes, placed in 3-D and carried to this frame.
+        let mut placed = Vec::new();
+        if params.fusion.place_lights && used.len() >= 2 {
+            let (a, b) = (get_probe(used[0])?.0, get_probe(used[1])?.0);
+            let la = find_lights(&a.image, &a.pose, white, params.fusion.min_core_px);
+            let lb = find_lights(&b.image, &b.pose, white, params.fusion.min_core_px);
+            let to_frame = frame.pose.world_from_camera.transpose();
+            for l in triangulate(
+                &la,
+                a.pose.position,
+                &lb,
+                b.pose.position,
+                params.fusion.max_gap_m,
+            ) {
+                let (d, pw) = l.seen_from(frame.pose.position);
+                placed.push((to_frame * d, pw));
+            }
+        }
+        let (img, rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
         return Ok((img, wr, fr, Some(rep)));
     }
     Ok(match params.method {

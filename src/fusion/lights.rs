@@ -1,0 +1,175 @@
+//! Light sources as sources: bright regions of two probes, matched by triangulation,
+//! placed in 3-D and carried to a frame with the power they have at the frame's
+//! position (radiance is invariant along rays; a small source's solid angle scales
+//! with the inverse square of its distance).
+
+use super::components;
+use crate::image::{luminance, HdrImage};
+use crate::scene::Pose;
+use crate::sphere::{pixel_to_dir, row_solid_angles};
+use glam::Vec3;
+
+/// A bright region of one panorama.
+#[derive(Clone, Copy, Debug)]
+pub struct Light {
+    /// Power-weighted mean direction, world axes, unit length.
+    pub dir: Vec3,
+    /// Power above the threshold (luminance x solid angle).
+    pub power: f64,
+}
+
+/// A light seen by two probes and placed in the world.
+#[derive(Clone, Copy, Debug)]
+pub struct PlacedLight {
+    /// World position (far away for sources at infinity).
+    pub position: Vec3,
+    /// True when the two rays were parallel: only the direction is known.
+    pub at_infinity: bool,
+    /// Direction when at infinity (world axes).
+    pub dir: Vec3,
+    /// `(power, distance)` as seen from each probe.
+    pub seen: [(f64, f32); 2],
+}
+
+impl PlacedLight {
+    /// Direction (world axes) and power of the light as seen from `p`.
+    pub fn seen_from(&self, p: Vec3) -> (Vec3, f64) {
+        if self.at_infinity {
+            return (self.dir, 0.5 * (self.seen[0].0 + self.seen[1].0));
+        }
+        let v = self.position - p;
+        let d = v.length().max(1e-3);
+        let power = self
+            .seen
+            .iter()
+            .map(|&(pw, dist)| pw * (dist as f64 / d as f64).powi(2))
+            .sum::<f64>()
+            / 2.0;
+        (v / d, power)
+    }
+}
+
+/// Bright regions (luminance above `threshold`) of a probe taken with `pose`, with at
+/// least `min_px` pixels.
+pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, min_px: usize) -> Vec<Light> {
+    let (w, h) = (img.width(), img.height());
+    let sa = row_solid_angles(w, h);
+    let bright: Vec<bool> = img.pixels().map(|p| luminance(p) > threshold).collect();
+    let (lab, n) = components(&bright, w, h);
+    let mut acc = vec![(Vec3::ZERO, 0.0f64, 0usize); n];
+    for (i, &l) in lab.iter().enumerate() {
+        if l == u32::MAX {
+            continue;
+        }
+        let (x, y) = (i % w, i / w);
+        let m = ((luminance(img.get(x, y)) - threshold) as f64) * sa[y] as f64;
+        let a = &mut acc[l as usize];
+        a.0 += pose.world_from_camera * pixel_to_dir(x, y, w, h) * m as f32;
+        a.1 += m;
+        a.2 += 1;
+    }
+    acc.into_iter()
+        .filter(|a| a.2 >= min_px && a.1 > 0.0 && a.0.length() > 0.0)
+        .map(|a| Light {
+            dir: a.0.normalize(),
+            power: a.1,
+        })
+        .collect()
+}
+
+/// Matches the lights of two probes (at `pa` and `pb`) whose rays nearly meet (gap
+/// below `max_gap` metres, in front of both) or are parallel (sources at infinity),
+/// best pairs first, each light used once.
+pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -> Vec<PlacedLight> {
+    let mut pairs = Vec::new();
+    for (i, la) in a.iter().enumerate() {
+        for (j, lb) in b.iter().enumerate() {
+            let cos = la.dir.dot(lb.dir);
+            if cos > 0.9998 {
+                // Parallel within about a degree: a source at infinity.
+                pairs.push((0.0f32, i, j, None));
+                continue;
+            }
+            // Closest points of the rays pa + s da and pb + t db.
+            let (da, db, r) = (la.dir, lb.dir, pa - pb);
+            let (bb, d, e) = (da.dot(db), da.dot(r), db.dot(r));
+            let denom = 1.0 - bb * bb;
+            if denom < 1e-8 {
+                continue;
+            }
+            let s = (bb * e - d) / denom;
+            let t = (e - bb * d) / denom;
+            if s <= 0.05 || t <= 0.05 {
+                continue;
+            }
+            let (qa, qb) = (pa + da * s, pb + db * t);
+            let gap = qa.distance(qb);
+            if gap <= max_gap {
+                pairs.push((gap, i, j, Some((qa + qb) * 0.5)));
+            }
+        }
+    }
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let (mut used_a, mut used_b) = (vec![false; a.len()], vec![false; b.len()]);
+    let mut out = Vec::new();
+    for (_, i, j, pos) in pairs {
+        if used_a[i] || used_b[j] {
+            continue;
+        }
+        used_a[i] = true;
+        used_b[j] = true;
+        out.push(match pos {
+            Some(x) => PlacedLight {
+                position: x,
+                at_infinity: false,
+                dir: Vec3::ZERO,
+                seen: [(a[i].power, x.distance(pa)), (b[j].power, x.distance(pb))],
+            },
+            None => PlacedLight {
+                position: Vec3::ZERO,
+                at_infinity: true,
+                dir: (a[i].dir + b[j].dir).normalize(),
+                seen: [(a[i].power, 1.0), (b[j].power, 1.0)],
+            },
+        });
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_lamp_seen_by_two_probes_is_placed_and_scaled() {
+        let lamp = Vec3::new(1.0, 0.5, 2.6);
+        let (pa, pb) = (Vec3::new(0.0, 0.0, 1.5), Vec3::new(2.0, 0.0, 1.5));
+        let la = Light {
+            dir: (lamp - pa).normalize(),
+            power: 2.0,
+        };
+        let lb = Light {
+            dir: (lamp - pb).normalize(),
+            power: 2.0,
+        };
+        let far = Light {
+            dir: Vec3::new(0.0, -1.0, 0.0),
+            power: 1.0,
+        };
+        let placed = triangulate(&[la, far], pa, &[far, lb], pb, 0.2);
+        assert_eq!(placed.len(), 2);
+        let lamp_light = placed.iter().find(|p| !p.at_infinity).unwrap();
+        assert!(lamp_light.position.distance(lamp) < 1e-3);
+        // Halfway between, closer to the lamp: more power than either probe saw.
+        let frame = Vec3::new(1.0, 0.5, 1.6);
+        let (dir, power) = lamp_light.seen_from(frame);
+        assert!(dir.dot(Vec3::Z) > 0.999);
+        let expect = 2.0 * (lamp.distance(pa) as f64 / 1.0).powi(2);
+        assert!(
+            (power - expect).abs() / expect < 1e-3,
+            "{power} vs {expect}"
+        );
+        let sun = placed.iter().find(|p| p.at_infinity).unwrap();
+        assert!((sun.seen_from(frame).1 - 1.0).abs() < 1e-9);
+    }
+}
