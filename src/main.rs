@@ -477,6 +477,9 @@ fn real_main(cli: Cli) -> Result<()> {
                         fs.tonemap_ms, fs.flow_ms, fs.warp_ms, fs.graphcut_ms
                     );
                 }
+                if r.fusion_ms > 0.0 {
+                    println!("  fusion (light placement + fill): {:.2} ms", r.fusion_ms);
+                }
                 println!(
                     "  probe load+preparation {:.1} ms once per probe; peak RSS {}",
                     r.probe_prepare_ms,

@@ -99,6 +99,9 @@ pub struct FusionReport {
     pub blobs: Vec<BlobReport>,
     /// Clipped regions without a counterpart in the estimate.
     pub unmatched: usize,
+    /// Time of the fusion itself (light placement included), in milliseconds.
+    #[serde(default)]
+    pub time_ms: f64,
 }
 
 /// Clipped pixels (any channel at or above `clip_code`) in regions of at least

@@ -33,6 +33,8 @@ pub struct BenchReport {
     pub warp_stages: WarpTimings,
     /// Mean flow-stage times per frame in ms.
     pub flow_stages: FlowTimings,
+    /// Mean time of the fusion step per frame in ms (fusion only).
+    pub fusion_ms: f64,
     /// One-off cost of loading and preparing a probe, in ms.
     pub probe_prepare_ms: f64,
     /// Peak resident memory of the process in MiB (Linux VmHWM), if known.
@@ -114,13 +116,17 @@ pub fn bench(
         let mut times = Vec::new();
         let mut warp_stages = WarpTimings::default();
         let mut flow_stages = FlowTimings::default();
+        let mut fusion_ms = 0.0;
         for _ in 0..repeats.max(1) {
             for (f, sdr, lin, used) in &inputs {
                 let t = Instant::now();
-                let (_, wr, fr, _) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
+                let (_, wr, fr, fu) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 if let Some(w) = wr {
                     add_warp(&mut warp_stages, &w.timings);
+                }
+                if let Some(fu) = fu {
+                    fusion_ms += fu.time_ms;
                 }
                 if let Some(fr) = fr {
                     flow_stages.tonemap_ms += fr.timings.tonemap_ms;
@@ -168,6 +174,7 @@ pub fn bench(
             median_ms: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
             warp_stages,
             flow_stages,
+            fusion_ms: fusion_ms / n,
             probe_prepare_ms: if prepared > 0 {
                 prep_ms / prepared as f64
             } else {

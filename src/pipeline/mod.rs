@@ -341,6 +341,7 @@ pub fn predict_frame(
             .decode(params.fusion.clip_code as f32 / 255.0)
             / scene.path_gain;
         // Lights seen by both probes, placed in 3-D and carried to this frame.
+        let t = Instant::now();
         let mut placed = Vec::new();
         if params.fusion.place_lights && used.len() >= 2 {
             let (a, b) = (get_probe(used[0])?.0, get_probe(used[1])?.0);
@@ -358,7 +359,8 @@ pub fn predict_frame(
                 placed.push((to_frame * d, pw));
             }
         }
-        let (img, rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
+        let (img, mut rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
+        rep.time_ms = t.elapsed().as_secs_f64() * 1e3;
         return Ok((img, wr, fr, Some(rep)));
     }
     Ok(match params.method {
