@@ -102,6 +102,15 @@ fn fusion_keeps_the_frame_and_restores_the_clipped_light() {
     let rep = run(&s, &out, &params, &|_, _| {}).unwrap();
     for f in &rep.frames {
         let fu = f.fusion.as_ref().expect("fusion report");
+        // The base cut carries the calibrated SDR frame as a label: it takes the
+        // unclipped pixels and never the clipped ones.
+        let fl = f.flow.as_ref().expect("base flow report");
+        let sdr_share = *fl.label_fractions.last().unwrap();
+        assert!(
+            sdr_share > 0.8 && sdr_share <= fu.sdr_fraction + 1e-6,
+            "sdr label {sdr_share} vs unclipped {}",
+            fu.sdr_fraction
+        );
         assert!(
             fu.sdr_fraction > 0.8 && fu.sdr_fraction < 1.0,
             "{}",

@@ -19,6 +19,12 @@ pub struct FlowMethodParams {
     /// Data cost of the SDR label (the thesis's c = 500: SDR only where nothing
     /// else is valid).
     pub sdr_cost: f32,
+    /// Calibrated SDR label (radiometric fusion): where the frame did not clip it
+    /// costs `sdr_cost` (set it low: the frame is a measurement there); where any
+    /// channel reached `clip_code` it is infeasible, so the probes fill it.
+    pub sdr_calibrated: bool,
+    /// 8-bit code from which an SDR channel counts as clipped.
+    pub clip_code: u8,
     /// Weight of the seam (smoothness) cost against the data cost.
     pub lambda: f32,
     /// Move-making algorithm.
@@ -36,6 +42,8 @@ impl Default for FlowMethodParams {
         FlowMethodParams {
             flow: FlowParams::default(),
             sdr_cost: 500.0,
+            sdr_calibrated: false,
+            clip_code: 250,
             lambda: 1.0,
             optimizer: Optimizer::Expansion,
             max_cycles: 4,
@@ -235,7 +243,11 @@ pub fn flow_frame(
             data[px * n_lab + i] = if feasible { cost } else { INFEASIBLE };
             features[(px * n_lab + i) * 3..(px * n_lab + i) * 3 + 3].copy_from_slice(d);
         }
-        data[px * n_lab + n_src] = p.sdr_cost;
+        let clipped = p.sdr_calibrated
+            && sdr.data()[3 * px..3 * px + 3]
+                .iter()
+                .any(|&c| c >= p.clip_code);
+        data[px * n_lab + n_src] = if clipped { INFEASIBLE } else { p.sdr_cost };
         features[(px * n_lab + n_src) * 3..(px * n_lab + n_src) * 3 + 3].copy_from_slice(f);
     }
     timings.warp_ms = ms(t);

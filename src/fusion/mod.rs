@@ -35,6 +35,9 @@ pub struct FusionParams {
     pub place_lights: bool,
     /// Largest gap in metres between two probes' rays for them to be one light.
     pub max_gap_m: f32,
+    /// Data cost of the calibrated SDR label in the base method's graph cut where the
+    /// frame did not clip (probe labels cost Dc + Df + Dd, about 0.3 to 2).
+    pub sdr_label_cost: f32,
 }
 
 /// How the estimate's light is carried into a clipped region.
@@ -60,6 +63,7 @@ impl Default for FusionParams {
             transfer: Transfer::Power,
             place_lights: true,
             max_gap_m: 0.25,
+            sdr_label_cost: 0.05,
         }
     }
 }

@@ -329,10 +329,16 @@ pub fn predict_frame(
                 "fusion needs another method as its base".into(),
             ));
         }
-        let base = RunParams {
+        // The base method's graph cut (flow, hybrid) carries the calibrated SDR
+        // frame as a label of its own: cheap where it measured, infeasible where it
+        // clipped, so one mechanism decides which pixels the probes fill.
+        let mut base = RunParams {
             method: params.fusion_base,
             ..params.clone()
         };
+        base.flow.sdr_calibrated = true;
+        base.flow.sdr_cost = params.fusion.sdr_label_cost;
+        base.flow.clip_code = params.fusion.clip_code;
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, get_probe, &base)?;
