@@ -169,7 +169,7 @@ enum Cmd {
         #[command(flatten)]
         flow: FlowOpts,
     },
-    /// Synthesize a small scene, run the warp method on it and print the scores.
+    /// Synthesize a small scene, run every method on it and print the scores.
     Demo {
         /// Folder for the scene and the predictions.
         #[arg(long, default_value = "lumiprobe-demo")]
@@ -428,7 +428,7 @@ fn real_main(cli: Cli) -> Result<()> {
             let ev = lumiprobe::pipeline::demo::demo(
                 &out,
                 &synth,
-                &RunParams::default(),
+                &[Method::Warp, Method::Flow, Method::Hybrid, Method::Fusion],
                 &progress_printer(cli.quiet, "frames"),
             )?;
             println!(
