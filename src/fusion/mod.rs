@@ -421,13 +421,17 @@ pub fn fuse_with_lights(
         }
         out.set(x, y, v);
     }
+    // Power above the white point placed in each region, in one pass.
+    let mut filled_power = vec![0.0f64; n];
+    for (i, &l) in lab.iter().enumerate() {
+        if l != u32::MAX {
+            filled_power[l as usize] += (luminance(out.get(i % w, i / w)) as f64 - white as f64)
+                .max(0.0)
+                * sa[i / w] as f64;
+        }
+    }
     for o in 0..n {
-        let filled: f64 = (0..w * h)
-            .filter(|&i| lab[i] as usize == o && lab[i] != u32::MAX)
-            .map(|i| {
-                (luminance(out.get(i % w, i / w)) as f64 - white as f64).max(0.0) * sa[i / w] as f64
-            })
-            .sum();
+        let filled = filled_power[o];
         let c = count[o].max(1) as f64;
         report.blobs.push(BlobReport {
             pixels: count[o],
