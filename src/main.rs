@@ -131,6 +131,9 @@ struct FlowOpts {
     /// Box radius over which the colour term is averaged (0 = per pixel).
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_radius)]
     dc_radius: usize,
+    /// Seam-cost weight where the SDR frame measured (did not clip), relative to clipped regions
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_measured)]
+    seam_measured: f32,
 }
 
 impl FlowOpts {
@@ -142,6 +145,7 @@ impl FlowOpts {
             max_cycles: self.max_cycles,
             no_smoothness: self.no_smoothness,
             dc_radius: self.dc_radius,
+            seam_measured: self.seam_measured,
             ..Default::default()
         };
         p.flow.preset = self.flow_preset;

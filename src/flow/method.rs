@@ -35,6 +35,11 @@ pub struct FlowMethodParams {
     pub no_smoothness: bool,
     /// Radius of the box window over which the colour term is averaged (0 = per pixel).
     pub dc_radius: usize,
+    /// Seam-cost weight, relative to clipped pixels, where the SDR frame measured
+    /// the scene (did not clip). There the colour term already tells the labels
+    /// apart, so smoothness should barely override it; in clipped regions the
+    /// colour term is blind and the seam cost alone keeps light sources whole.
+    pub seam_measured: f32,
 }
 
 impl Default for FlowMethodParams {
@@ -49,6 +54,7 @@ impl Default for FlowMethodParams {
             max_cycles: 4,
             no_smoothness: false,
             dc_radius: 0,
+            seam_measured: 0.1,
         }
     }
 }
@@ -224,12 +230,40 @@ pub fn flow_frame(
             box_filter(&raw, w, h, p.dc_radius)
         })
         .collect();
+    // Seam weight per pixel: 1 where the frame clipped (or next to a clipped
+    // pixel), `seam_measured` where it measured.
+    let clipped_px: Vec<bool> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= p.clip_code))
+        .collect();
+    let seam_w: Vec<f32> = (0..w * h)
+        .map(|px| {
+            let (x, y) = (px % w, px / w);
+            let near = [(0i64, 0i64), (-1, 0), (1, 0), (0, -1), (0, 1)]
+                .iter()
+                .any(|&(dx, dy)| {
+                    let yy = y as i64 + dy;
+                    if yy < 0 || yy >= h as i64 {
+                        return false;
+                    }
+                    let xx = (x as i64 + dx).rem_euclid(w as i64) as usize;
+                    clipped_px[yy as usize * w + xx]
+                });
+            if near {
+                1.0
+            } else {
+                p.seam_measured
+            }
+        })
+        .collect();
+    // Seam features: log exposure `ln(1 + gain E)`, which does not saturate, so
+    // labels that disagree inside a clipped lamp still cost a seam.
+    let seam_feature = |v: f32| (1.0 + (gain * v).max(0.0)).ln();
     let mut data = vec![0.0f32; w * h * n_lab];
     let mut features = vec![0.0f32; w * h * n_lab * 3];
     for px in 0..w * h {
-        let f = &frame_disp[3 * px..3 * px + 3];
         for i in 0..n_src {
-            let d = &warped_disp[i][3 * px..3 * px + 3];
             let dc = dcs[i][px];
             let df = 1.0 - confs[i][px];
             let dd = if dist_sum > 0.0 {
@@ -241,26 +275,55 @@ pub fn flow_frame(
             let hdr = &warped[i].data()[3 * px..3 * px + 3];
             let feasible = cost.is_finite() && hdr.iter().all(|v| v.is_finite());
             data[px * n_lab + i] = if feasible { cost } else { INFEASIBLE };
-            features[(px * n_lab + i) * 3..(px * n_lab + i) * 3 + 3].copy_from_slice(d);
+            for k in 0..3 {
+                features[(px * n_lab + i) * 3 + k] = seam_w[px] * seam_feature(hdr[k]);
+            }
         }
-        let clipped = p.sdr_calibrated
-            && sdr.data()[3 * px..3 * px + 3]
-                .iter()
-                .any(|&c| c >= p.clip_code);
+        let clipped = p.sdr_calibrated && clipped_px[px];
         data[px * n_lab + n_src] = if clipped { INFEASIBLE } else { p.sdr_cost };
-        features[(px * n_lab + n_src) * 3..(px * n_lab + n_src) * 3 + 3].copy_from_slice(f);
+        let lin = &sdr_linear.data()[3 * px..3 * px + 3];
+        for k in 0..3 {
+            features[(px * n_lab + n_src) * 3 + k] = seam_w[px] * seam_feature(lin[k]);
+        }
     }
     timings.warp_ms = ms(t);
 
     let t = Instant::now();
     // The SDR label can be left out when it can never win: its data cost exceeds the
-    // cheapest probe label's by more than the most smoothness a pixel can save (four
-    // edges, each at most twice the largest feature distance, sqrt(3) in display RGB).
-    let max_seam_saving = 4.0 * 2.0 * 3f32.sqrt() * p.lambda;
+    // cheapest probe label's by more than the most smoothness the pixel can save,
+    // `lambda` times the largest label-pair feature distance at the pixel (four
+    // times, once per edge) plus that at each of its four neighbours.
+    let dmax: Vec<f32> = features
+        .chunks_exact(n_lab * 3)
+        .map(|f| {
+            let mut m = 0.0f32;
+            for a in 0..n_lab {
+                for b in a + 1..n_lab {
+                    let (fa, fb) = (&f[a * 3..a * 3 + 3], &f[b * 3..b * 3 + 3]);
+                    let d2: f32 = (0..3).map(|k| (fa[k] - fb[k]) * (fa[k] - fb[k])).sum();
+                    m = m.max(d2.sqrt());
+                }
+            }
+            if m.is_finite() {
+                m
+            } else {
+                f32::INFINITY
+            }
+        })
+        .collect();
     let sdr_needed = (0..w * h).any(|px| {
         let d = &data[px * n_lab..(px + 1) * n_lab];
         let best_probe = d[..n_src].iter().cloned().fold(f32::INFINITY, f32::min);
-        d[n_src] <= best_probe + max_seam_saving
+        let (x, y) = (px % w, px / w);
+        let mut reach = 4.0 * dmax[px];
+        reach += dmax[y * w + (x + 1) % w] + dmax[y * w + (x + w - 1) % w];
+        if y > 0 {
+            reach += dmax[px - w];
+        }
+        if y + 1 < h {
+            reach += dmax[px + w];
+        }
+        d[n_src] <= best_probe + p.lambda * reach
     });
     let (cut_labels, cut_data, cut_features);
     let (data_ref, feat_ref) = if sdr_needed {
