@@ -5,6 +5,12 @@
 //! clipped region is transferred as a source: the estimate's power above the white
 //! point around the region is placed inside it, so a lamp that the estimate puts a
 //! few pixels off still lights the scene with the right power from the right place.
+//!
+//! Clipping is per channel: where only some channels of a pixel clipped (a sunlit
+//! coloured wall, a warm lamp's rim) the others stay measurements and only the
+//! clipped ones are estimated, from the estimate's colour ratios; the light is
+//! placed in the pixels where every channel clipped. Pixels of the safety margin
+//! that did not clip stay as measured.
 
 pub mod lights;
 
@@ -26,7 +32,9 @@ pub struct FusionParams {
     /// Largest angle between a light in the estimate and a clipped region for the
     /// light to be attributed to that region.
     pub max_angle_deg: f32,
-    /// Width in pixels of the log-domain cross-fade at the edge of filled regions.
+    /// Width in pixels of the log-domain cross-fade at the edge of filled regions
+    /// (0 by default: the pixels around a filled region are measurements, and
+    /// blending the estimate into them measured slightly worse on every scene).
     pub feather_px: usize,
     /// What a clipped region inherits from the estimate's light.
     pub transfer: Transfer,
@@ -38,6 +46,8 @@ pub struct FusionParams {
     /// Data cost of the calibrated SDR label in the base method's graph cut where the
     /// frame did not clip (probe labels cost Dc + Df + Dd, about 0.3 to 2).
     pub sdr_label_cost: f32,
+    /// Clipped pixels from which [`Transfer::Auto`] treats a region as resolved.
+    pub resolved_px: usize,
 }
 
 /// How the estimate's light is carried into a clipped region.
@@ -50,6 +60,11 @@ pub enum Transfer {
     Radiance,
     /// Keep the source's power as the estimate has it.
     Power,
+    /// Per region: radiance for regions the frame resolves (at least
+    /// `resolved_px` clipped pixels: windows, sunlit walls, sky, whose radiance is
+    /// the same from nearby viewpoints while their power is not), power for
+    /// unresolved ones (small lamps, the sun disc, whose pixels blur their light).
+    Auto,
 }
 
 impl Default for FusionParams {
@@ -59,11 +74,12 @@ impl Default for FusionParams {
             margin_px: 1,
             min_core_px: 3,
             max_angle_deg: 30.0,
-            feather_px: 2,
+            feather_px: 0,
             transfer: Transfer::Power,
             place_lights: true,
             max_gap_m: 0.25,
             sdr_label_cost: 0.05,
+            resolved_px: 64,
         }
     }
 }
@@ -359,18 +375,29 @@ pub fn fuse_with_lights(
             anchored[target as usize] = true;
         }
     }
+    let mut core_count = vec![0usize; n];
+    for i in 0..w * h {
+        if core[i] && lab[i] != u32::MAX {
+            core_count[lab[i] as usize] += 1;
+        }
+    }
+    let by_radiance = |o: usize| match p.transfer {
+        Transfer::Radiance => true,
+        Transfer::Power => false,
+        Transfer::Auto => core_count[o] >= p.resolved_px,
+    };
     let target_power: Vec<f64> = (0..n)
         .map(|o| {
-            if anchored[o] {
+            if by_radiance(o) {
+                if est_area[o] > 0.0 {
+                    est_power[o] / est_area[o] * core_area[o]
+                } else {
+                    0.0
+                }
+            } else if anchored[o] {
                 anchor_power[o]
             } else {
-                match p.transfer {
-                    Transfer::Power => est_power[o],
-                    Transfer::Radiance if est_area[o] > 0.0 => {
-                        est_power[o] / est_area[o] * core_area[o]
-                    }
-                    Transfer::Radiance => 0.0,
-                }
+                est_power[o]
             }
         })
         .collect();
@@ -384,17 +411,108 @@ pub fn fuse_with_lights(
             y as f32 + 0.5 + shift[o].1,
         )
     };
+    // What the frame measured at each region pixel: every channel clipped (nothing
+    // measured: the light is placed here), some channels clipped (the others are
+    // measurements), or none (a margin pixel, kept as measured).
+    #[derive(Clone, Copy, PartialEq)]
+    enum Kind {
+        Full,
+        Partial,
+        Margin,
+    }
+    let mut kinds: Vec<Kind> = (0..w * h)
+        .map(|i| {
+            let c = &sdr.data()[3 * i..3 * i + 3];
+            match c.iter().filter(|&&v| v >= p.clip_code).count() {
+                3 => Kind::Full,
+                0 => Kind::Margin,
+                _ => Kind::Partial,
+            }
+        })
+        .collect();
+    // Partially clipped pixels: measured channels kept, each clipped channel
+    // following the estimate's ratio to the brightest measured one (never below the
+    // clipped value). Margin pixels stay as measured.
+    let mut partial_power = vec![0.0f64; n];
+    let mut partial_px_power = vec![0.0f64; w * h];
+    for i in 0..w * h {
+        if lab[i] == u32::MAX || kinds[i] != Kind::Partial {
+            continue;
+        }
+        let o = lab[i] as usize;
+        let (x, y) = (i % w, i / w);
+        let c = &sdr.data()[3 * i..3 * i + 3];
+        let s = sdr_linear.get(x, y);
+        let e = shifted(i);
+        let r = (0..3)
+            .filter(|&k| c[k] < p.clip_code)
+            .max_by(|&a, &b| s[a].total_cmp(&s[b]))
+            .unwrap_or(0);
+        let mut v = s;
+        for k in 0..3 {
+            if c[k] >= p.clip_code && e[r] > 1e-12 && e[k].is_finite() {
+                v[k] = (s[r] * e[k] / e[r]).max(s[k]);
+            }
+        }
+        let pw = (luminance(v) as f64 - white as f64).max(0.0) * sa[y] as f64;
+        partial_px_power[i] = pw;
+        partial_power[o] += pw;
+        out.set(x, y, v);
+    }
+    // A region with light left to place but no fully clipped pixel (a light every
+    // pixel of which kept a channel, e.g. through JPEG chroma bleeding) places it
+    // in its partially clipped pixels where the shifted estimate is bright (all of
+    // them if none is), so the light is never lost.
+    let mut has_full = vec![false; n];
+    let mut has_bright_partial = vec![false; n];
+    for i in 0..w * h {
+        if lab[i] == u32::MAX {
+            continue;
+        }
+        let o = lab[i] as usize;
+        match kinds[i] {
+            Kind::Full => has_full[o] = true,
+            Kind::Partial if luminance(shifted(i)) > white => has_bright_partial[o] = true,
+            _ => {}
+        }
+    }
+    let promote: Vec<bool> = (0..n)
+        .map(|o| !has_full[o] && target_power[o] > 1.05 * partial_power[o])
+        .collect();
+    let mut full_area = vec![0.0f64; n];
+    for i in 0..w * h {
+        if lab[i] == u32::MAX {
+            continue;
+        }
+        let o = lab[i] as usize;
+        if kinds[i] == Kind::Partial
+            && promote[o]
+            && (!has_bright_partial[o] || luminance(shifted(i)) > white)
+        {
+            kinds[i] = Kind::Full;
+            partial_power[o] -= partial_px_power[i];
+        }
+        if kinds[i] == Kind::Full {
+            full_area[o] += sa[i / w] as f64;
+        }
+    }
+    let kind = |i: usize| kinds[i];
+    // Fully clipped pixels receive the rest of the region's power: the white point
+    // plus the shifted excess, rescaled to that power, spread evenly when the
+    // shifted light misses them. A region with no fully clipped pixel keeps what
+    // its partial pixels carry.
     let mut inside = vec![0.0f64; n];
     for i in 0..w * h {
-        if lab[i] != u32::MAX {
+        if lab[i] != u32::MAX && kind(i) == Kind::Full {
             let o = lab[i] as usize;
             inside[o] += (luminance(shifted(i)) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
         }
     }
-    // Fill: the white point plus the shifted excess, rescaled so the region receives
-    // the power attributed to it; spread evenly when the shifted light misses it.
+    let rest: Vec<f64> = (0..n)
+        .map(|o| (target_power[o] - partial_power[o]).max(0.0))
+        .collect();
     for i in 0..w * h {
-        if lab[i] == u32::MAX {
+        if lab[i] == u32::MAX || kind(i) != Kind::Full {
             continue;
         }
         let o = lab[i] as usize;
@@ -403,9 +521,9 @@ pub fn fuse_with_lights(
         let le = luminance(e).max(0.0);
         let excess = (le - white).max(0.0) as f64;
         let add = if inside[o] > 0.0 {
-            excess * target_power[o] / inside[o]
-        } else if area[o] > 0.0 {
-            target_power[o] / area[o]
+            excess * rest[o] / inside[o]
+        } else if full_area[o] > 0.0 {
+            rest[o] / full_area[o]
         } else {
             0.0
         };
@@ -557,6 +675,67 @@ mod tests {
         // The estimate's colour is kept.
         let c = out.get(40, 20);
         assert!(c[0] > c[1] && c[1] > c[2]);
+    }
+
+    #[test]
+    fn partly_clipped_pixels_keep_their_measured_channels() {
+        let (w, h) = (64, 32);
+        // A sunlit orange wall: red clipped, green and blue measured.
+        let mut codes = vec![100u8; w * h * 3];
+        let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        for y in 10..20 {
+            for x in 20..40 {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 200, 60]);
+                lin.set(x, y, [1.0, 0.7, 0.1]);
+            }
+        }
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        // The estimate knows the wall is 1.6x brighter in red than in green.
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (20..40).contains(&x) && (10..20).contains(&y) {
+                [1.12, 0.7, 0.1]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        let v = out.get(30, 15);
+        assert_eq!((v[1], v[2]), (0.7, 0.1), "measured channels changed: {v:?}");
+        assert!(
+            (v[0] - 1.12).abs() < 1e-4,
+            "clipped red from the ratio: {v:?}"
+        );
+        // The margin ring around the region stays as measured.
+        assert_eq!(out.get(19, 15), [0.2, 0.2, 0.2]);
+    }
+
+    #[test]
+    fn a_light_with_no_fully_clipped_pixel_is_not_lost() {
+        let (w, h) = (128, 64);
+        // A lamp whose every pixel kept its blue channel (chroma bleeding).
+        let mut codes = vec![100u8; w * h * 3];
+        let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        for y in 30..33 {
+            for x in 60..63 {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 240]);
+                lin.set(x, y, [1.0, 1.0, 0.9]);
+            }
+        }
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (60..63).contains(&x) && (30..33).contains(&y) {
+                [300.0, 300.0, 250.0]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let p = FusionParams {
+            transfer: Transfer::Power,
+            ..Default::default()
+        };
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
+        let (pe, po) = (power_above(&est, 1.0), power_above(&out, 1.0));
+        assert!((po - pe).abs() / pe < 0.05, "power {po} vs {pe}");
     }
 
     #[test]
