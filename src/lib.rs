@@ -9,12 +9,14 @@
 pub mod cv;
 pub mod error;
 pub mod eval;
+pub mod ffi;
 pub mod flow;
 pub mod fsutil;
 pub mod fusion;
 pub mod ibl;
 pub mod image;
 pub mod pipeline;
+pub mod render;
 pub mod scene;
 pub mod sphere;
 pub mod synth;
