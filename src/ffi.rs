@@ -1,0 +1,288 @@
+//! The C ABI: what C and C++ renderers link against (`liblumiprobe.so` plus
+//! `include/lumiprobe.h`).
+//!
+//! Every exported function lives in this module and nowhere else. Conventions:
+//! * Objects are opaque handles created by `lp_*_new`/`lp_*_read` style calls and
+//!   released with the matching `lp_*_free`; freeing `NULL` is a no-op.
+//! * Functions that can fail return an [`LpStatus`]; on failure the message (which
+//!   names the file when one is involved) is kept per thread and read back with
+//!   [`lp_last_error`]. Output pointers are written only on success.
+//! * No Rust panic crosses the boundary: each entry point runs under
+//!   `catch_unwind` and reports `LP_ERR_PANIC`.
+//! * Pointers passed in must be valid for the stated lengths; `NULL` where a
+//!   pointer is required is reported as `LP_ERR_INVALID`, never dereferenced.
+//!
+//! Images are linear RGB, 32-bit float, row-major, three interleaved channels,
+//! with the equirect conventions of [`crate::sphere`].
+
+#![allow(clippy::missing_safety_doc)]
+
+use crate::error::Error;
+use crate::ibl::Sh9;
+use crate::image::HdrImage;
+use std::cell::RefCell;
+use std::ffi::{c_char, CStr};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::PathBuf;
+
+/// Result of a C ABI call.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LpStatus {
+    /// Success.
+    Ok = 0,
+    /// Bad arguments (null pointer, size mismatch, unknown name, ...).
+    Invalid = 1,
+    /// The operating system refused a read or write.
+    Io = 2,
+    /// A file's contents are malformed or too large.
+    Format = 3,
+    /// The OpenCV layer failed.
+    OpenCv = 4,
+    /// An internal error (a bug): the call was abandoned safely.
+    Panic = 5,
+}
+
+/// An HDR image owned by the library.
+pub struct LpImage {
+    img: HdrImage,
+}
+
+thread_local! {
+    static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
+}
+
+fn set_error(msg: String) {
+    LAST_ERROR.with(|e| *e.borrow_mut() = msg);
+}
+
+fn status_of(e: &Error) -> LpStatus {
+    match e {
+        Error::Io { .. } => LpStatus::Io,
+        Error::Format { .. } | Error::TooLarge { .. } => LpStatus::Format,
+        Error::OpenCv(_) => LpStatus::OpenCv,
+        _ => LpStatus::Invalid,
+    }
+}
+
+/// Runs `f`, turning errors and panics into a status plus the thread's message.
+fn guard(f: impl FnOnce() -> crate::Result<()>) -> LpStatus {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => {
+            set_error(String::new());
+            LpStatus::Ok
+        }
+        Ok(Err(e)) => {
+            let s = status_of(&e);
+            set_error(e.to_string());
+            s
+        }
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            set_error(format!("internal error: {msg}"));
+            LpStatus::Panic
+        }
+    }
+}
+
+fn invalid(msg: &str) -> Error {
+    Error::Invalid(msg.to_string())
+}
+
+unsafe fn path_arg(p: *const c_char, what: &str) -> crate::Result<PathBuf> {
+    if p.is_null() {
+        return Err(invalid(&format!("{what} is NULL")));
+    }
+    let s = CStr::from_ptr(p)
+        .to_str()
+        .map_err(|_| invalid(&format!("{what} is not UTF-8")))?;
+    Ok(PathBuf::from(s))
+}
+
+unsafe fn str_arg(p: *const c_char, what: &str) -> crate::Result<String> {
+    Ok(path_arg(p, what)?.to_string_lossy().into_owned())
+}
+
+/// Library version as a static NUL-terminated string.
+#[no_mangle]
+pub extern "C" fn lp_version() -> *const c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr() as *const c_char
+}
+
+/// Copies the calling thread's last error message (empty after a success) into
+/// `buf` (NUL-terminated, truncated to `len`) and returns its full length in bytes
+/// without the NUL, so a caller can size a buffer. `buf` may be NULL when `len`
+/// is 0.
+#[no_mangle]
+pub unsafe extern "C" fn lp_last_error(buf: *mut c_char, len: usize) -> usize {
+    LAST_ERROR.with(|e| {
+        let e = e.borrow();
+        let bytes = e.as_bytes();
+        if !buf.is_null() && len > 0 {
+            let n = bytes.len().min(len - 1);
+            std::ptr::copy_nonoverlapping(bytes.as_ptr(), buf as *mut u8, n);
+            *buf.add(n) = 0;
+        }
+        bytes.len()
+    })
+}
+
+/// Reads an HDR image (OpenEXR, Radiance .hdr or PFM) into `*out`. 8-bit files
+/// are refused: they need the camera's response to become radiance.
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_read(path: *const c_char, out: *mut *mut LpImage) -> LpStatus {
+    guard(|| {
+        if out.is_null() {
+            return Err(invalid("out is NULL"));
+        }
+        let p = path_arg(path, "path")?;
+        let img = crate::image::io::read_hdr(&p)?;
+        *out = Box::into_raw(Box::new(LpImage { img }));
+        Ok(())
+    })
+}
+
+/// Copies `width * height * 3` floats from `rgb` into a new image.
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_from_rgb(
+    rgb: *const f32,
+    width: u32,
+    height: u32,
+    out: *mut *mut LpImage,
+) -> LpStatus {
+    guard(|| {
+        if out.is_null() || rgb.is_null() {
+            return Err(invalid("rgb or out is NULL"));
+        }
+        let n = (width as usize)
+            .checked_mul(height as usize)
+            .and_then(|n| n.checked_mul(3))
+            .filter(|&n| n > 0 && n <= 3 << 28)
+            .ok_or_else(|| invalid("image size is zero or too large"))?;
+        let data = std::slice::from_raw_parts(rgb, n).to_vec();
+        let img = HdrImage::from_vec(width as usize, height as usize, data)?;
+        *out = Box::into_raw(Box::new(LpImage { img }));
+        Ok(())
+    })
+}
+
+/// Width in pixels (0 for NULL).
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_width(img: *const LpImage) -> u32 {
+    img.as_ref().map_or(0, |i| i.img.width() as u32)
+}
+
+/// Height in pixels (0 for NULL).
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_height(img: *const LpImage) -> u32 {
+    img.as_ref().map_or(0, |i| i.img.height() as u32)
+}
+
+/// The pixels (`width * height * 3` floats), valid until the image is freed;
+/// NULL for NULL.
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_data(img: *const LpImage) -> *const f32 {
+    img.as_ref()
+        .map_or(std::ptr::null(), |i| i.img.data().as_ptr())
+}
+
+/// Writes the image; the format follows the extension (.exr float32, .hdr,
+/// .pfm; 8-bit extensions are refused). The file is written to a temporary name
+/// and renamed.
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_write(img: *const LpImage, path: *const c_char) -> LpStatus {
+    guard(|| {
+        let img = img.as_ref().ok_or_else(|| invalid("image is NULL"))?;
+        let p = path_arg(path, "path")?;
+        crate::image::io::write_hdr(&p, &img.img)
+    })
+}
+
+/// Releases an image (NULL is ignored).
+#[no_mangle]
+pub unsafe extern "C" fn lp_image_free(img: *mut LpImage) {
+    if !img.is_null() {
+        drop(Box::from_raw(img));
+    }
+}
+
+/// Projects an equirect probe onto order-2 spherical harmonics: 27 floats, 9
+/// coefficients of 3 channels each, in the order of [`crate::ibl::sh`]
+/// (l = 0; l = 1: y, z, x; l = 2: xy, yz, 3z^2 - 1, xz, x^2 - y^2).
+#[no_mangle]
+pub unsafe extern "C" fn lp_sh_project(img: *const LpImage, coeffs: *mut f32) -> LpStatus {
+    guard(|| {
+        let img = img.as_ref().ok_or_else(|| invalid("image is NULL"))?;
+        if coeffs.is_null() {
+            return Err(invalid("coeffs is NULL"));
+        }
+        let sh = Sh9::project(&img.img);
+        let out = std::slice::from_raw_parts_mut(coeffs, 27);
+        for (k, c) in sh.coeffs.iter().enumerate() {
+            out[3 * k..3 * k + 3].copy_from_slice(c);
+        }
+        Ok(())
+    })
+}
+
+/// Diffuse irradiance E (RGB, not divided by pi) at unit normal `n` (camera axes
+/// of the probe: x right, y up, -z forward) from 27 SH coefficients, clamped at 0.
+#[no_mangle]
+pub unsafe extern "C" fn lp_sh_irradiance(
+    coeffs: *const f32,
+    n: *const f32,
+    out_rgb: *mut f32,
+) -> LpStatus {
+    guard(|| {
+        if coeffs.is_null() || n.is_null() || out_rgb.is_null() {
+            return Err(invalid("coeffs, n or out_rgb is NULL"));
+        }
+        let c = std::slice::from_raw_parts(coeffs, 27);
+        let mut sh = Sh9::zero();
+        for k in 0..9 {
+            sh.coeffs[k] = [c[3 * k], c[3 * k + 1], c[3 * k + 2]];
+        }
+        let nv = std::slice::from_raw_parts(n, 3);
+        let d = glam::Vec3::new(nv[0], nv[1], nv[2]);
+        if !d.is_finite() || d.length_squared() < 1e-12 {
+            return Err(invalid("normal must be finite and non-zero"));
+        }
+        let e = sh.irradiance_clamped(d.normalize());
+        std::slice::from_raw_parts_mut(out_rgb, 3).copy_from_slice(&e);
+        Ok(())
+    })
+}
+
+/// Runs `method` ("warp", "flow", "hybrid" or "fusion") with default settings
+/// over the scene in `scene_dir` (a folder with `poses.json`), writing one probe
+/// per frame into `out_dir`. A rerun keeps frames already produced.
+#[no_mangle]
+pub unsafe extern "C" fn lp_run(
+    scene_dir: *const c_char,
+    out_dir: *const c_char,
+    method: *const c_char,
+) -> LpStatus {
+    guard(|| {
+        let scene_dir = path_arg(scene_dir, "scene_dir")?;
+        let out_dir = path_arg(out_dir, "out_dir")?;
+        let m = str_arg(method, "method")?;
+        let method = match m.as_str() {
+            "warp" => crate::pipeline::Method::Warp,
+            "flow" => crate::pipeline::Method::Flow,
+            "hybrid" => crate::pipeline::Method::Hybrid,
+            "fusion" => crate::pipeline::Method::Fusion,
+            _ => return Err(invalid(&format!("unknown method '{m}'"))),
+        };
+        let scene = crate::scene::Scene::load(&scene_dir)?;
+        let params = crate::pipeline::RunParams {
+            method,
+            ..Default::default()
+        };
+        crate::pipeline::run(&scene, &out_dir, &params, &|_, _| {})?;
+        Ok(())
+    })
+}

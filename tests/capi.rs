@@ -1,0 +1,217 @@
+//! The C ABI: header and library agree, calls behave on good and bad input, and a
+//! C program built against `include/lumiprobe.h` links and runs.
+
+use lumiprobe::ffi::*;
+use std::ffi::{CStr, CString};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn manifest() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Names of `lp_*` functions declared in a text (header or Rust source): every
+/// identifier `lp_...` directly followed by `(` on a line that is not a comment.
+fn names(text: &str, rust: bool) -> Vec<String> {
+    let mut v = Vec::new();
+    for l in text.lines() {
+        let t = l.trim_start();
+        if t.starts_with("//") || t.starts_with('*') || t.starts_with("/*") {
+            continue;
+        }
+        if rust && !l.contains("extern \"C\" fn") {
+            continue;
+        }
+        let b = l.as_bytes();
+        let mut i = 0;
+        while let Some(off) = l[i..].find("lp_") {
+            let s = i + off;
+            let prev_ok = s == 0 || !(b[s - 1].is_ascii_alphanumeric() || b[s - 1] == b'_');
+            let mut e = s;
+            while e < b.len() && (b[e].is_ascii_alphanumeric() || b[e] == b'_') {
+                e += 1;
+            }
+            if prev_ok && l[e..].trim_start().starts_with('(') {
+                v.push(l[s..e].to_string());
+            }
+            i = e;
+        }
+    }
+    v.sort();
+    v.dedup();
+    v
+}
+
+#[test]
+fn header_declares_exactly_the_exported_functions() {
+    let header = std::fs::read_to_string(manifest().join("include/lumiprobe.h")).unwrap();
+    let rust = std::fs::read_to_string(manifest().join("src/ffi.rs")).unwrap();
+    let (h, r) = (names(&header, false), names(&rust, true));
+    assert!(r.len() >= 10, "found only {r:?}");
+    assert_eq!(h, r, "header and src/ffi.rs disagree");
+}
+
+fn last_error() -> String {
+    let n = unsafe { lp_last_error(std::ptr::null_mut(), 0) };
+    let mut buf = vec![0u8; n + 1];
+    unsafe { lp_last_error(buf.as_mut_ptr() as *mut _, buf.len()) };
+    CStr::from_bytes_until_nul(&buf)
+        .unwrap()
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn bad_calls_return_errors_naming_the_problem() {
+    unsafe {
+        let mut img: *mut LpImage = std::ptr::null_mut();
+        let missing = CString::new("/nonexistent/probe.exr").unwrap();
+        assert_eq!(lp_image_read(missing.as_ptr(), &mut img), LpStatus::Io);
+        assert!(img.is_null());
+        assert!(last_error().contains("/nonexistent/probe.exr"));
+
+        assert_eq!(lp_image_read(std::ptr::null(), &mut img), LpStatus::Invalid);
+        assert!(last_error().contains("NULL"));
+
+        let dir = tempfile::tempdir().unwrap();
+        let junk = dir.path().join("junk.exr");
+        std::fs::write(&junk, b"v/1\x01 definitely not an EXR").unwrap();
+        let cj = CString::new(junk.to_str().unwrap()).unwrap();
+        assert_eq!(lp_image_read(cj.as_ptr(), &mut img), LpStatus::Format);
+        assert!(last_error().contains("junk.exr"));
+
+        let m = CString::new("teleport").unwrap();
+        let d = CString::new(dir.path().to_str().unwrap()).unwrap();
+        assert_eq!(
+            lp_run(d.as_ptr(), d.as_ptr(), m.as_ptr()),
+            LpStatus::Invalid
+        );
+        assert!(last_error().contains("teleport"));
+
+        // Accessors and free are NULL-safe.
+        assert_eq!(lp_image_width(std::ptr::null()), 0);
+        assert!(lp_image_data(std::ptr::null()).is_null());
+        lp_image_free(std::ptr::null_mut());
+
+        let zero = [0f32; 3];
+        assert_eq!(
+            lp_sh_irradiance(
+                zero.repeat(9).as_ptr(),
+                zero.as_ptr(),
+                [0f32; 3].as_mut_ptr()
+            ),
+            LpStatus::Invalid
+        );
+    }
+}
+
+#[test]
+fn images_round_trip_and_a_constant_probe_gives_pi_l() {
+    unsafe {
+        let (w, h) = (32u32, 16u32);
+        let px: Vec<f32> = (0..w * h * 3).map(|_| 0.75).collect();
+        let mut img: *mut LpImage = std::ptr::null_mut();
+        assert_eq!(lp_image_from_rgb(px.as_ptr(), w, h, &mut img), LpStatus::Ok);
+        assert_eq!((lp_image_width(img), lp_image_height(img)), (w, h));
+        let dir = tempfile::tempdir().unwrap();
+        let path = CString::new(dir.path().join("c.exr").to_str().unwrap()).unwrap();
+        assert_eq!(lp_image_write(img, path.as_ptr()), LpStatus::Ok);
+        let mut back: *mut LpImage = std::ptr::null_mut();
+        assert_eq!(lp_image_read(path.as_ptr(), &mut back), LpStatus::Ok);
+        let data = std::slice::from_raw_parts(lp_image_data(back), (w * h * 3) as usize);
+        assert_eq!(data, &px[..]);
+
+        let mut sh = [0f32; 27];
+        assert_eq!(lp_sh_project(back, sh.as_mut_ptr()), LpStatus::Ok);
+        let mut e = [0f32; 3];
+        let n = [0.3f32, -0.8, 0.2];
+        assert_eq!(
+            lp_sh_irradiance(sh.as_ptr(), n.as_ptr(), e.as_mut_ptr()),
+            LpStatus::Ok
+        );
+        for c in e {
+            assert!((c - std::f32::consts::PI * 0.75).abs() < 0.01, "{e:?}");
+        }
+        lp_image_free(img);
+        lp_image_free(back);
+    }
+}
+
+/// The directory holding `liblumiprobe.so` of this build (`target/<profile>`).
+fn lib_dir() -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok()?;
+    // target/<profile>/deps/capi-xxxx
+    let profile = exe.parent()?.parent()?;
+    [profile.to_path_buf(), profile.join("deps")]
+        .into_iter()
+        .find(|d| d.join("liblumiprobe.so").exists())
+}
+
+fn have(cmd: &str) -> bool {
+    Command::new(cmd).arg("--version").output().is_ok()
+}
+
+#[test]
+fn a_c_program_links_and_runs() {
+    assert!(have("cc"), "a C compiler (cc) is needed to check the C ABI");
+    // Cargo builds the cdylib next to the test binaries (`target/<profile>/deps`).
+    let lib = lib_dir().expect("liblumiprobe.so next to the test binary");
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("t.c");
+    std::fs::write(
+        &src,
+        r#"
+#include <stdio.h>
+#include <string.h>
+#include "lumiprobe.h"
+int main(int argc, char **argv) {
+    float px[32 * 16 * 3];
+    for (int i = 0; i < 32 * 16 * 3; i++) px[i] = 2.0f;
+    LpImage *img = NULL;
+    if (lp_image_from_rgb(px, 32, 16, &img) != LP_OK) return 2;
+    if (lp_image_write(img, argv[1]) != LP_OK) return 3;
+    LpImage *back = NULL;
+    if (lp_image_read(argv[1], &back) != LP_OK) return 4;
+    if (lp_image_width(back) != 32 || lp_image_data(back)[5] != 2.0f) return 5;
+    float sh[27], n[3] = {0, 1, 0}, e[3];
+    if (lp_sh_project(back, sh) != LP_OK) return 6;
+    if (lp_sh_irradiance(sh, n, e) != LP_OK) return 7;
+    LpImage *bad = NULL;
+    if (lp_image_read("/no/such/file.hdr", &bad) == LP_OK || bad != NULL) return 8;
+    char msg[256];
+    lp_last_error(msg, sizeof msg);
+    if (!strstr(msg, "/no/such/file.hdr")) return 9;
+    printf("%s %.4f\n", lp_version(), e[1]);
+    lp_image_free(img);
+    lp_image_free(back);
+    return 0;
+}
+"#,
+    )
+    .unwrap();
+    let exe = dir.path().join("t");
+    let out = Command::new("cc")
+        .arg(&src)
+        .arg("-I")
+        .arg(manifest().join("include"))
+        .arg("-L")
+        .arg(&lib)
+        .arg(format!("-Wl,-rpath,{}", lib.display()))
+        .arg("-llumiprobe")
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cc failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = dir.path().join("x.exr");
+    let run = Command::new(&exe).arg(&img).output().unwrap();
+    assert!(run.status.success(), "exit {:?}", run.status.code());
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let e: f32 = stdout.split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!((e - 2.0 * std::f32::consts::PI).abs() < 0.02, "{stdout}");
+    assert!(Path::new(&img).exists());
+}
