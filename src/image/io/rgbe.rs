@@ -429,7 +429,7 @@ mod tests {
 
     #[test]
     fn rgbe_conversion_is_accurate_and_safe() {
-        for &v in &[1.0f32, 0.5, 3.14159, 1e-20, 1e-31, 12345.678, 1e30, 1.7e38] {
+        for &v in &[1.0f32, 0.5, 2.71, 1e-20, 1e-31, 12345.678, 1e30, 1.7e38] {
             let back = from_rgbe(to_rgbe([v, v * 0.5, v * 0.25]));
             assert!(((back[0] - v) / v).abs() < 4e-3, "{v} -> {back:?}");
             assert!(((back[1] - v * 0.5) / v).abs() < 4e-3, "{v} -> {back:?}");
