@@ -39,6 +39,7 @@
 //! All reductions run per row in parallel and add the row results in row order, so
 //! the numbers do not depend on the thread count.
 
+pub mod plot;
 pub mod ssim;
 pub mod table;
 
