@@ -222,6 +222,99 @@ enum Cmd {
         /// Print JSON (table and per-frame scores) instead of the text table.
         #[arg(long)]
         json: bool,
+        /// Folder of glTF models (.glb/.gltf): also render each lit by every
+        /// prediction, baseline and the ground truth, and score the renders (the
+        /// thesis's Table 5.1).
+        #[arg(long)]
+        models: Option<PathBuf>,
+        /// Frames rendered per scene with `--models` (spread over the walk; 0 = all).
+        #[arg(long, default_value_t = 5)]
+        render_frames: usize,
+        /// Render size in pixels with `--models`.
+        #[arg(long, default_value_t = 256)]
+        render_size: usize,
+        /// Folder for the report: eval.json, error_vs_distance.csv and .png, and
+        /// renders.json with `--models`.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+    /// Prefilter a probe for image-based lighting: SH irradiance, irradiance cube,
+    /// GGX specular mips and the split-sum BRDF table, as EXR/JSON files.
+    Prefilter {
+        /// HDR probe (equirect .exr/.hdr/.pfm).
+        probe: PathBuf,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Specular face size of mip 0.
+        #[arg(long, default_value_t = 128)]
+        face_size: usize,
+        /// Specular mips (roughness i / (mips - 1)).
+        #[arg(long, default_value_t = 6)]
+        mips: usize,
+        /// GGX samples per texel.
+        #[arg(long, default_value_t = 256)]
+        samples: usize,
+        /// One file per cube face, or one strip of six faces per cube.
+        #[arg(long, value_enum, default_value_t = Layout::Faces)]
+        layout: Layout,
+    },
+    /// Render a glTF model lit by a probe (CPU rasterizer, split-sum IBL).
+    Render {
+        /// glTF 2.0 model (.glb or .gltf).
+        model: PathBuf,
+        /// HDR probe lighting it (equirect).
+        #[arg(long)]
+        probe: PathBuf,
+        /// Output path; `<out>.exr` (linear) and `<out>.png` (tone-mapped) are written.
+        #[arg(long)]
+        out: PathBuf,
+        /// Image size in pixels (square).
+        #[arg(long, default_value_t = 512)]
+        size: usize,
+        /// Direction the camera looks along, x,y,z in the probe's axes (x right, y up,
+        /// -z forward); the model is framed automatically.
+        #[arg(long, value_parser = parse_vec3, default_value = "0,-0.35,-1", allow_hyphen_values = true)]
+        view: [f32; 3],
+        /// Vertical field of view in degrees.
+        #[arg(long, default_value_t = 35.0)]
+        fov: f32,
+        /// Transparent background instead of the probe.
+        #[arg(long)]
+        transparent: bool,
+        /// Exposure of the PNG in EV.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        exposure: f32,
+    },
+    /// Composite a glTF model, lit by each frame's probe, over the SDR frames (the
+    /// thesis's viewer as PNGs and, with ffmpeg, an MP4).
+    Composite {
+        /// Scene folder.
+        scene: PathBuf,
+        /// Probes per frame (a `lumiprobe run` output folder).
+        #[arg(long)]
+        pred: PathBuf,
+        /// glTF 2.0 model.
+        #[arg(long)]
+        model: PathBuf,
+        /// World position x,y,z (metres, z up) where the model stands.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+        at: [f32; 3],
+        /// Model size: radius of its bounding sphere in metres.
+        #[arg(long, default_value_t = 0.25)]
+        radius: f32,
+        /// Turn of the model about the world's up axis, degrees.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        yaw: f32,
+        /// Output folder (frame PNGs, composite.mp4).
+        #[arg(long)]
+        out: PathBuf,
+        /// Output size WxH.
+        #[arg(long, value_parser = parse_size, default_value = "640x360")]
+        size: (usize, usize),
+        /// Frames per second of the video.
+        #[arg(long, default_value_t = 10)]
+        fps: u32,
     },
     /// Scores for two HDR panoramas (the second is the reference).
     Compare {
@@ -280,6 +373,27 @@ enum Cmd {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum Layout {
+    /// One file per cube face.
+    Faces,
+    /// One 6n x n strip per cube.
+    Strip,
+}
+
+fn parse_vec3(s: &str) -> std::result::Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f32>().map_err(|e| format!("{t:?}: {e}")))
+        .collect::<std::result::Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!(
+            "expected x,y,z with three finite numbers, got {s:?}"
+        )),
+    }
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum Operator {
     Reinhard05,
     Reinhard,
@@ -304,6 +418,31 @@ fn run_params(
             ..Default::default()
         },
     }
+}
+
+/// The glTF files (.glb, .gltf) of a folder, sorted by name.
+fn model_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            matches!(
+                p.extension()
+                    .and_then(|e| e.to_str())
+                    .map(|e| e.to_ascii_lowercase())
+                    .as_deref(),
+                Some("glb" | "gltf")
+            )
+        })
+        .collect();
+    v.sort();
+    if v.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{}: no .glb or .gltf model",
+            dir.display()
+        )));
+    }
+    Ok(v)
 }
 
 fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
@@ -493,7 +632,15 @@ fn real_main(cli: Cli) -> Result<()> {
                 );
             }
         }
-        Cmd::Eval { scene, pred, json } => {
+        Cmd::Eval {
+            scene,
+            pred,
+            json,
+            models,
+            render_frames,
+            render_size,
+            report,
+        } => {
             let scene = Scene::load(&scene)?;
             let labelled: Vec<(String, PathBuf)> = pred
                 .iter()
@@ -519,6 +666,155 @@ fn real_main(cli: Cli) -> Result<()> {
             } else {
                 println!("scene {}", ev.scene);
                 print!("{}", ev.table.to_text());
+                print!("{}", lumiprobe::pipeline::evaluate::distance_table(&ev, 3));
+            }
+            let renders = match &models {
+                Some(dir) => {
+                    let files = model_files(dir)?;
+                    let opts = lumiprobe::pipeline::render_eval::RenderEvalOptions {
+                        frames: render_frames,
+                        size: render_size,
+                        ..Default::default()
+                    };
+                    let re = lumiprobe::pipeline::render_eval::render_eval(
+                        &scene, &refs, &files, &opts,
+                    )?;
+                    if !json {
+                        println!("renders (lit by each probe vs by the ground truth)");
+                        print!("{}", re.to_text());
+                    }
+                    Some(re)
+                }
+                None => None,
+            };
+            if let Some(dir) = report {
+                std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+                let js =
+                    serde_json::to_vec_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?;
+                lumiprobe::fsutil::write_atomic(&dir.join("eval.json"), &js)?;
+                let csv = lumiprobe::pipeline::evaluate::distance_csv(&ev);
+                lumiprobe::fsutil::write_atomic(
+                    &dir.join("error_vs_distance.csv"),
+                    csv.as_bytes(),
+                )?;
+                let plot = lumiprobe::pipeline::evaluate::distance_plot(&ev, renders.as_ref());
+                io::write_sdr(&dir.join("error_vs_distance.png"), &plot.draw(800, 500))?;
+                if let Some(re) = &renders {
+                    let js =
+                        serde_json::to_vec_pretty(re).map_err(|e| Error::Invalid(e.to_string()))?;
+                    lumiprobe::fsutil::write_atomic(&dir.join("renders.json"), &js)?;
+                }
+            }
+        }
+        Cmd::Composite {
+            scene,
+            pred,
+            model,
+            at,
+            radius,
+            yaw,
+            out,
+            size,
+            fps,
+        } => {
+            use lumiprobe::pipeline::composite::{composite, CompositeOptions};
+            let scene = Scene::load(&scene)?;
+            let opts = CompositeOptions {
+                at: glam::Vec3::from(at),
+                radius,
+                yaw_deg: yaw,
+                width: size.0,
+                height: size.1,
+                ..Default::default()
+            };
+            let rep = composite(&scene, &pred, &model, &out, &opts, fps)?;
+            if !cli.quiet {
+                eprintln!(
+                    "{} frames in {}{}{}",
+                    rep.frames.len(),
+                    out.display(),
+                    rep.video
+                        .as_ref()
+                        .map(|v| format!(", video {}", v.display()))
+                        .unwrap_or_else(|| ", no ffmpeg: no video".into()),
+                    if rep.skipped.is_empty() {
+                        String::new()
+                    } else {
+                        format!(
+                            ", skipped (model behind or too close): {}",
+                            rep.skipped.join(" ")
+                        )
+                    }
+                );
+            }
+        }
+        Cmd::Prefilter {
+            probe,
+            out,
+            face_size,
+            mips,
+            samples,
+            layout,
+        } => {
+            use lumiprobe::ibl::export::{prefilter_to_dir, FaceLayout, PrefilterOptions};
+            let mut opts = PrefilterOptions::default();
+            opts.specular.face_size = face_size;
+            opts.specular.mip_count = mips;
+            opts.specular.samples = samples;
+            opts.layout = match layout {
+                Layout::Faces => FaceLayout::Faces,
+                Layout::Strip => FaceLayout::Strip,
+            };
+            let rep = prefilter_to_dir(&probe, &out, &opts)?;
+            if !cli.quiet {
+                eprintln!(
+                    "prefiltered {} in {:.2} s: {} files in {}",
+                    probe.display(),
+                    rep.prefilter_seconds,
+                    rep.files.len(),
+                    out.display()
+                );
+            }
+        }
+        Cmd::Render {
+            model,
+            probe,
+            out,
+            size,
+            view,
+            fov,
+            transparent,
+            exposure,
+        } => {
+            use lumiprobe::render::{
+                render, write_render, Background, Camera, Model, RenderOptions,
+            };
+            let m = Model::load(&model)?;
+            let mut env_img = io::read_hdr(&probe)?;
+            let repaired = env_img.repair_invalid();
+            if repaired > 0 {
+                eprintln!(
+                    "{}: repaired {repaired} NaN/inf/negative samples",
+                    probe.display()
+                );
+            }
+            let env = lumiprobe::ibl::export::Prefiltered::from_env(
+                &env_img,
+                &lumiprobe::ibl::export::PrefilterOptions::default(),
+            )?;
+            let cam = Camera::framing(&m.bounds(), glam::Vec3::from(view), fov, size, size);
+            let opts = RenderOptions {
+                background: if transparent {
+                    Background::Transparent
+                } else {
+                    Background::Environment
+                },
+                ..Default::default()
+            };
+            let r = render(&m, &env, &cam, &opts)?;
+            let (a, b) = write_render(&out, &r, exposure)?;
+            if !cli.quiet {
+                eprintln!("wrote {} and {}", a.display(), b.display());
             }
         }
         Cmd::Compare { a, b } => {

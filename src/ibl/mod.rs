@@ -1,8 +1,21 @@
 //! Image-based lighting from HDR probes: order-2 spherical harmonics for diffuse
-//! irradiance ([`sh`]) and small helpers shared with the evaluation.
+//! irradiance ([`sh`]), the prefiltering stage that turns a probe into what a
+//! renderer samples (irradiance cube [`irradiance`], GGX specular cube
+//! [`prefilter`], split-sum BRDF table [`mod@brdf_lut`]), and small helpers shared with
+//! the evaluation.
 
+pub mod brdf_lut;
+pub mod export;
+pub mod irradiance;
+pub mod prefilter;
 pub mod sh;
 
+pub use brdf_lut::{brdf_lookup, brdf_lut};
+pub use export::{
+    load_prefiltered, prefilter_to_dir, FaceLayout, PrefilterOptions, PrefilterReport, Prefiltered,
+};
+pub use irradiance::irradiance_cube;
+pub use prefilter::{prefilter_specular, CubeMip, SpecularCube, SpecularOptions};
 pub use sh::{sh_basis, Sh9, ShWindow, SH_COUNT};
 
 use glam::Vec3;

@@ -117,3 +117,128 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
         frames,
     })
 }
+
+/// Error against distance to the nearest probe (the thesis's Fig. 5.13) as text:
+/// frames split into `bins` equal distance ranges, mean tone-mapped PSNR and
+/// log-luminance RMSE per method in each.
+pub fn distance_table(ev: &SceneEval, bins: usize) -> String {
+    let bins = bins.max(1);
+    let d: Vec<f32> = ev.frames.iter().map(|f| f.probe_distance_m).collect();
+    let lo = d.iter().cloned().fold(f32::INFINITY, f32::min);
+    let hi = d.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+    let width = ((hi - lo) / bins as f32).max(1e-6);
+    let bin_of = |x: f32| (((x - lo) / width) as usize).min(bins - 1);
+    let mut s =
+        String::from("error against distance to the nearest probe (PSNR dB / log-lum RMSE)\n");
+    s += &format!("{:<24}", "method \\ distance m");
+    for b in 0..bins {
+        let (a, c) = (lo + b as f32 * width, lo + (b + 1) as f32 * width);
+        let n = d.iter().filter(|&&x| bin_of(x) == b).count();
+        s += &format!(" {:>17}", format!("{a:.2}-{c:.2} ({n})"));
+    }
+    s.push('\n');
+    let Some(first) = ev.frames.first() else {
+        return s;
+    };
+    for (k, (label, _)) in first.scores.iter().enumerate() {
+        s += &format!("{label:<24}");
+        for b in 0..bins {
+            let m: Vec<&Metrics> = ev
+                .frames
+                .iter()
+                .filter(|f| bin_of(f.probe_distance_m) == b)
+                .map(|f| &f.scores[k].1)
+                .collect();
+            if m.is_empty() {
+                s += &format!(" {:>17}", "-");
+            } else {
+                let n = m.len() as f64;
+                let p = m.iter().map(|x| x.psnr_tm).sum::<f64>() / n;
+                let l = m.iter().map(|x| x.log_lum_rmse).sum::<f64>() / n;
+                s += &format!(" {:>17}", format!("{p:.2} / {l:.3}"));
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
+/// Per-frame scores against distance as CSV: `frame,distance_m,method,psnr_tm,
+/// ssim_tm,log_lum_rmse,irradiance_rel_err,dominant_dir_err_deg`.
+pub fn distance_csv(ev: &SceneEval) -> String {
+    let mut s = String::from(
+        "frame,distance_m,method,psnr_tm,ssim_tm,log_lum_rmse,irradiance_rel_err,dominant_dir_err_deg\n",
+    );
+    for f in &ev.frames {
+        for (label, m) in &f.scores {
+            s += &format!(
+                "{},{:.4},{},{:.4},{:.5},{:.5},{:.5},{:.3}\n",
+                f.id,
+                f.probe_distance_m,
+                label,
+                m.psnr_tm,
+                m.ssim_tm,
+                m.log_lum_rmse,
+                m.irradiance_rel_err,
+                m.dominant_dir_err_deg
+            );
+        }
+    }
+    s
+}
+
+/// Tone-mapped PSNR of each method against distance to the nearest probe, one
+/// series per method (and per method's renders, averaged over models, when
+/// `renders` is given).
+pub fn distance_plot(
+    ev: &SceneEval,
+    renders: Option<&super::render_eval::RenderEval>,
+) -> crate::eval::plot::Plot {
+    use crate::eval::plot::{Plot, Series};
+    let mut series: Vec<Series> = Vec::new();
+    if let Some(first) = ev.frames.first() {
+        for (k, (label, _)) in first.scores.iter().enumerate() {
+            series.push(Series {
+                name: label.trim_start_matches("baseline:").to_string(),
+                points: ev
+                    .frames
+                    .iter()
+                    .map(|f| (f.probe_distance_m as f64, f.scores[k].1.psnr_tm))
+                    .collect(),
+                line: false,
+            });
+        }
+    }
+    if let Some(re) = renders {
+        let mut labels: Vec<&str> = Vec::new();
+        for s in &re.scores {
+            if !labels.contains(&s.label.as_str()) {
+                labels.push(&s.label);
+            }
+        }
+        for l in labels {
+            let mut frames: Vec<(&str, f64, f64, usize)> = Vec::new();
+            for s in re.scores.iter().filter(|s| s.label == l) {
+                match frames.iter_mut().find(|f| f.0 == s.frame) {
+                    Some(f) => {
+                        f.2 += s.psnr;
+                        f.3 += 1;
+                    }
+                    None => frames.push((&s.frame, s.probe_distance_m as f64, s.psnr, 1)),
+                }
+            }
+            series.push(Series {
+                name: format!("{} render", l.trim_start_matches("baseline:")),
+                points: frames.iter().map(|f| (f.1, f.2 / f.3 as f64)).collect(),
+                line: true,
+            });
+        }
+    }
+    Plot {
+        title: format!("{}: error against distance to the nearest probe", ev.scene),
+        x_label: "distance to nearest probe (m)".into(),
+        y_label: "PSNR tone-mapped (dB)".into(),
+        log_x: false,
+        series,
+    }
+}

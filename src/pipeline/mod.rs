@@ -3,8 +3,10 @@
 //! an interrupted run without redoing finished frames.
 
 pub mod bench;
+pub mod composite;
 pub mod demo;
 pub mod evaluate;
+pub mod render_eval;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};

@@ -32,6 +32,7 @@
 pub mod brdf;
 pub mod camera;
 pub mod model;
+mod probe_env;
 mod raster;
 
 pub use brdf::{SplitSumLut, SurfaceParams};
