@@ -6,6 +6,7 @@
 //! and file formats, [`sphere`] the panorama geometry, [`tonemap`] tone mapping and
 //! camera responses, [`cv`] the one bridge to the C++/OpenCV layer.
 
+pub mod capture;
 pub mod cv;
 pub mod error;
 pub mod eval;

@@ -1,0 +1,22 @@
+//! Capturing a light probe: exposure brackets (8-bit, Exif-timed) merged into one
+//! HDR panorama, with the camera response recovered from the brackets themselves
+//! (Debevec & Malik 1997, "Recovering High Dynamic Range Radiance Maps from
+//! Photographs").
+//!
+//! * [`exif`] reads each frame's exposure time from its JPEG Exif block.
+//! * [`debevec`] recovers the per-channel response curve `g = ln f⁻¹` and stores it
+//!   ([`ResponseCurve`], JSON) so other SDR frames of the camera can be linearised.
+//! * [`merge`](mod@merge) merges the bracket and reports what clipped even in the darkest
+//!   frame ([`MergeReport`]): a merge under-estimates those sources, and the user
+//!   should be told by how much of the sphere and of the light.
+//! * [`cli`] is the `lumiprobe merge` command.
+
+pub mod cli;
+pub mod debevec;
+pub mod exif;
+pub mod merge;
+
+pub use cli::{run_merge, MergeArgs};
+pub use debevec::{recover, RecoverOptions, Recovery, ResponseCurve};
+pub use exif::{read_exposure, ExifExposure};
+pub use merge::{merge, Exposure, MergeOptions, MergeReport, Merged};
