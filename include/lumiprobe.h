@@ -73,6 +73,72 @@ LpStatus lp_sh_irradiance(const float coeffs[27], const float n[3], float out_rg
  * (with poses.json), writing one HDR probe per frame into out_dir. Resumable. */
 LpStatus lp_run(const char *scene_dir, const char *out_dir, const char *method);
 
+/* ---- Probe sets: probes placed in the world, queried by position ---- */
+
+typedef struct LpProbeSet LpProbeSet;
+
+typedef enum LpBlend {
+    LP_BLEND_NEAREST = 0,          /* the nearest probe alone */
+    LP_BLEND_INVERSE_DISTANCE = 1  /* the two nearest, weighted by inverse distance */
+} LpBlend;
+
+/* Opens the probes of a scene (scene_dir holds poses.json): the per-frame outputs
+ * of `lumiprobe run` in run_dir, or, when run_dir is NULL, the scene's own HDR probes. */
+LpStatus lp_probe_set_open(const char *scene_dir, const char *run_dir, LpProbeSet **out);
+
+/* Number of probes (0 for NULL). */
+uint32_t lp_probe_set_count(const LpProbeSet *set);
+
+/* World position of probe `index` (metres, world z up). */
+LpStatus lp_probe_set_position(const LpProbeSet *set, uint32_t index, float xyz[3]);
+
+/* The probe for world position xyz as an equirect image in WORLD orientation:
+ * probe axes x = world x, y (up) = world z, -z (panorama centre) = world +y.
+ * `blend` is an LpBlend value. Free the image with lp_image_free. */
+LpStatus lp_probe_set_query(const LpProbeSet *set, const float xyz[3], uint32_t blend, LpImage **out);
+
+void lp_probe_set_free(LpProbeSet *set);
+
+/* ---- Prefiltered probes for split-sum image-based lighting ---- */
+
+typedef struct LpPrefiltered LpPrefiltered;
+
+/* Prefilters an equirect probe: SH irradiance, a GGX specular cube of mip_count mips
+ * (mip i holds roughness i / (mip_count - 1); mip 0 is face_size texels and reproduces
+ * the source), `samples` GGX samples per texel, and the split-sum BRDF table.
+ * NaN, infinite or negative texels are an error (LP_ERR_INVALID). */
+LpStatus lp_prefilter(const LpImage *probe, uint32_t face_size, uint32_t mip_count,
+                      uint32_t samples, LpPrefiltered **out);
+
+/* Number of specular mips (0 for NULL). */
+uint32_t lp_prefiltered_mip_count(const LpPrefiltered *p);
+
+/* Roughness and face size of specular mip `mip`. */
+LpStatus lp_prefiltered_mip_info(const LpPrefiltered *p, uint32_t mip, float *roughness,
+                                 uint32_t *face_size);
+
+/* Texels of one cube face of one specular mip: face_size * face_size * 3 floats,
+ * row-major, valid until lp_prefiltered_free; NULL when mip or face is out of range.
+ * Faces 0..5 look along -z, +x, +z, -x, +y, -y (probe axes). Texel (x, y) of a face
+ * of size n looks along N + a R + b D with a = 2 (x + 0.5) / n - 1,
+ * b = 2 (y + 0.5) / n - 1 and (N, R, D) = (-z, +x, -y), (+x, +z, -y), (+z, -x, -y),
+ * (-x, -z, -y), (+y, +x, -z), (-y, +x, +z). */
+const float *lp_prefiltered_face(const LpPrefiltered *p, uint32_t mip, uint32_t face);
+
+/* The 27 SH coefficients (window applied) the irradiance comes from, ordered as
+ * lp_sh_project's; pass them to lp_sh_irradiance. */
+LpStatus lp_prefiltered_sh(const LpPrefiltered *p, float coeffs[27]);
+
+/* Split-sum shading of one point in the probe's axes: n the unit normal, v the
+ * direction from the surface to the eye, glTF metallic-roughness parameters.
+ * out_rgb = base_color (1 - metallic) E / pi + prefiltered(reflect, roughness) (F0 A + B),
+ * F0 = mix(0.04, base_color, metallic). */
+LpStatus lp_prefiltered_shade(const LpPrefiltered *p, const float n[3], const float v[3],
+                              const float base_color[3], float metallic, float roughness,
+                              float out_rgb[3]);
+
+void lp_prefiltered_free(LpPrefiltered *p);
+
 #ifdef __cplusplus
 }
 #endif

@@ -286,3 +286,253 @@ pub unsafe extern "C" fn lp_run(
         Ok(())
     })
 }
+
+/// Probes placed in the world (a run's per-frame outputs or a scene's own
+/// probes), queried by position; see [`crate::pipeline::probe_set`].
+pub struct LpProbeSet {
+    set: crate::pipeline::probe_set::ProbeSet,
+}
+
+/// Opens the probes of a scene (`scene_dir` holds `poses.json`): the per-frame
+/// outputs of a run in `run_dir`, or, when `run_dir` is NULL, the scene's own
+/// HDR probes.
+#[no_mangle]
+pub unsafe extern "C" fn lp_probe_set_open(
+    scene_dir: *const c_char,
+    run_dir: *const c_char,
+    out: *mut *mut LpProbeSet,
+) -> LpStatus {
+    guard(|| {
+        if out.is_null() {
+            return Err(invalid("out is NULL"));
+        }
+        let scene = path_arg(scene_dir, "scene_dir")?;
+        let run = if run_dir.is_null() {
+            None
+        } else {
+            Some(path_arg(run_dir, "run_dir")?)
+        };
+        let set = crate::pipeline::probe_set::ProbeSet::open(&scene, run.as_deref())?;
+        *out = Box::into_raw(Box::new(LpProbeSet { set }));
+        Ok(())
+    })
+}
+
+/// Number of probes in a set (0 for NULL).
+#[no_mangle]
+pub unsafe extern "C" fn lp_probe_set_count(set: *const LpProbeSet) -> u32 {
+    set.as_ref().map_or(0, |s| s.set.entries.len() as u32)
+}
+
+/// World position (metres, z up) of probe `index`.
+#[no_mangle]
+pub unsafe extern "C" fn lp_probe_set_position(
+    set: *const LpProbeSet,
+    index: u32,
+    xyz: *mut f32,
+) -> LpStatus {
+    guard(|| {
+        let s = set.as_ref().ok_or_else(|| invalid("set is NULL"))?;
+        if xyz.is_null() {
+            return Err(invalid("xyz is NULL"));
+        }
+        let e = s.set.entries.get(index as usize).ok_or_else(|| {
+            invalid(&format!(
+                "index {index} is out of range (the set has {} probes)",
+                s.set.entries.len()
+            ))
+        })?;
+        let p = e.pose.position;
+        std::slice::from_raw_parts_mut(xyz, 3).copy_from_slice(&[p.x, p.y, p.z]);
+        Ok(())
+    })
+}
+
+/// The probe for world position `xyz`, as an equirect image in world orientation
+/// (camera x = world x, camera up = world z, panorama centre = world +y), at the
+/// size of the stored probes. `blend` is `LpBlend` of the header: 0 the nearest
+/// probe, 1 the two nearest weighted by inverse distance; taken as an integer so
+/// an out-of-range value from C is an error, not undefined behaviour.
+#[no_mangle]
+pub unsafe extern "C" fn lp_probe_set_query(
+    set: *const LpProbeSet,
+    xyz: *const f32,
+    blend: u32,
+    out: *mut *mut LpImage,
+) -> LpStatus {
+    guard(|| {
+        let s = set.as_ref().ok_or_else(|| invalid("set is NULL"))?;
+        if xyz.is_null() || out.is_null() {
+            return Err(invalid("xyz or out is NULL"));
+        }
+        let p = std::slice::from_raw_parts(xyz, 3);
+        let b = match blend {
+            0 => crate::pipeline::probe_set::Blend::Nearest,
+            1 => crate::pipeline::probe_set::Blend::InverseDistance2,
+            k => return Err(invalid(&format!("unknown blend mode {k}"))),
+        };
+        let (img, _) = s.set.query(glam::Vec3::new(p[0], p[1], p[2]), b, None)?;
+        *out = Box::into_raw(Box::new(LpImage { img }));
+        Ok(())
+    })
+}
+
+/// Releases a probe set (NULL is ignored).
+#[no_mangle]
+pub unsafe extern "C" fn lp_probe_set_free(set: *mut LpProbeSet) {
+    if !set.is_null() {
+        drop(Box::from_raw(set));
+    }
+}
+
+/// A probe prefiltered for shading: SH irradiance, GGX specular cube mips, BRDF table.
+pub struct LpPrefiltered {
+    p: crate::ibl::Prefiltered,
+}
+
+/// Prefilters an equirect probe: specular cube of `mip_count` mips (roughness
+/// `i / (mip_count - 1)`), mip 0 `face_size` texels, `samples` GGX samples per
+/// texel. NaN, infinite or negative texels are an error.
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefilter(
+    probe: *const LpImage,
+    face_size: u32,
+    mip_count: u32,
+    samples: u32,
+    out: *mut *mut LpPrefiltered,
+) -> LpStatus {
+    guard(|| {
+        let img = probe.as_ref().ok_or_else(|| invalid("probe is NULL"))?;
+        if out.is_null() {
+            return Err(invalid("out is NULL"));
+        }
+        let mut opts = crate::ibl::PrefilterOptions::default();
+        opts.specular.face_size = face_size as usize;
+        opts.specular.mip_count = mip_count as usize;
+        opts.specular.samples = samples as usize;
+        let p = crate::ibl::Prefiltered::from_env(&img.img, &opts)?;
+        *out = Box::into_raw(Box::new(LpPrefiltered { p }));
+        Ok(())
+    })
+}
+
+/// Number of specular mips (0 for NULL).
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_mip_count(p: *const LpPrefiltered) -> u32 {
+    p.as_ref().map_or(0, |p| p.p.specular.mips.len() as u32)
+}
+
+/// Roughness and face size of specular mip `mip`.
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_mip_info(
+    p: *const LpPrefiltered,
+    mip: u32,
+    roughness: *mut f32,
+    face_size: *mut u32,
+) -> LpStatus {
+    guard(|| {
+        let p = p.as_ref().ok_or_else(|| invalid("prefiltered is NULL"))?;
+        if roughness.is_null() || face_size.is_null() {
+            return Err(invalid("roughness or face_size is NULL"));
+        }
+        let m = p.p.specular.mips.get(mip as usize).ok_or_else(|| {
+            invalid(&format!(
+                "mip {mip} is out of range ({} mips)",
+                p.p.specular.mips.len()
+            ))
+        })?;
+        *roughness = m.roughness;
+        *face_size = m.size as u32;
+        Ok(())
+    })
+}
+
+/// Texels of cube face `face` (0..6: -z, +x, +z, -x, +y, -y) of specular mip
+/// `mip`: face_size * face_size * 3 floats, valid until [`lp_prefiltered_free`];
+/// NULL when an argument is out of range.
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_face(
+    p: *const LpPrefiltered,
+    mip: u32,
+    face: u32,
+) -> *const f32 {
+    p.as_ref()
+        .and_then(|p| p.p.specular.mips.get(mip as usize))
+        .and_then(|m| m.faces.get(face as usize))
+        .map_or(std::ptr::null(), |f| f.data().as_ptr())
+}
+
+/// The 27 SH coefficients the irradiance is computed from (window applied),
+/// in the order of [`lp_sh_project`].
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_sh(p: *const LpPrefiltered, coeffs: *mut f32) -> LpStatus {
+    guard(|| {
+        let p = p.as_ref().ok_or_else(|| invalid("prefiltered is NULL"))?;
+        if coeffs.is_null() {
+            return Err(invalid("coeffs is NULL"));
+        }
+        let out = std::slice::from_raw_parts_mut(coeffs, 27);
+        for (k, c) in p.p.sh.coeffs.iter().enumerate() {
+            out[3 * k..3 * k + 3].copy_from_slice(c);
+        }
+        Ok(())
+    })
+}
+
+/// Shades one point with split-sum IBL: `out_rgb` = albedo-weighted diffuse
+/// (`base_color * (1 - metallic) * E / pi`) plus specular
+/// (`prefiltered(r, roughness) * (F0 A + B)`, `F0` = mix(0.04, base_color, metallic)),
+/// for unit normal `n` and view direction `v` (surface towards the eye), all in
+/// the probe's axes. No occlusion, no energy compensation.
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_shade(
+    p: *const LpPrefiltered,
+    n: *const f32,
+    v: *const f32,
+    base_color: *const f32,
+    metallic: f32,
+    roughness: f32,
+    out_rgb: *mut f32,
+) -> LpStatus {
+    guard(|| {
+        let p = p.as_ref().ok_or_else(|| invalid("prefiltered is NULL"))?;
+        if n.is_null() || v.is_null() || base_color.is_null() || out_rgb.is_null() {
+            return Err(invalid("n, v, base_color or out_rgb is NULL"));
+        }
+        let vec = |q: *const f32| {
+            let s = std::slice::from_raw_parts(q, 3);
+            glam::Vec3::new(s[0], s[1], s[2])
+        };
+        let (nn, vv, bc) = (vec(n), vec(v), vec(base_color));
+        if !nn.is_finite() || !vv.is_finite() || nn.length_squared() < 1e-12 {
+            return Err(invalid("n and v must be finite and n non-zero"));
+        }
+        if !bc.is_finite() || !metallic.is_finite() || !roughness.is_finite() {
+            return Err(invalid("material parameters must be finite"));
+        }
+        let nn = nn.normalize();
+        let vv = vv.normalize_or_zero();
+        let n_dot_v = nn.dot(vv).clamp(1e-4, 1.0);
+        let r = (2.0 * nn.dot(vv) * nn - vv).normalize_or(nn);
+        let m = metallic.clamp(0.0, 1.0);
+        let rough = roughness.clamp(0.0, 1.0);
+        let e = p.p.irradiance(nn);
+        let s = p.p.specular(r, rough);
+        let [a, b] = p.p.brdf(n_dot_v, rough);
+        let out = std::slice::from_raw_parts_mut(out_rgb, 3);
+        for k in 0..3 {
+            let f0 = 0.04 * (1.0 - m) + bc[k] * m;
+            let diffuse = bc[k] * (1.0 - m) * e[k] / std::f32::consts::PI;
+            out[k] = diffuse + s[k] * (f0 * a + b);
+        }
+        Ok(())
+    })
+}
+
+/// Releases a prefiltered probe (NULL is ignored).
+#[no_mangle]
+pub unsafe extern "C" fn lp_prefiltered_free(p: *mut LpPrefiltered) {
+    if !p.is_null() {
+        drop(Box::from_raw(p));
+    }
+}

@@ -215,3 +215,207 @@ int main(int argc, char **argv) {
     assert!((e - 2.0 * std::f32::consts::PI).abs() < 0.02, "{stdout}");
     assert!(Path::new(&img).exists());
 }
+
+/// A scene of two constant probes (radiance 1 and 3) 2 m apart, with different
+/// headings, in the dataset's `poses.json` layout.
+fn two_constant_probes(dir: &Path) {
+    std::fs::create_dir_all(dir.join("probes")).unwrap();
+    let mut probes = Vec::new();
+    for (k, (x, l, yaw)) in [(0.0f32, 1.0f32, 0.0f32), (2.0, 3.0, 1.2)]
+        .iter()
+        .enumerate()
+    {
+        let px = vec![*l; 64 * 32 * 3];
+        let c_path = CString::new(dir.join(format!("probes/p{k}.exr")).to_str().unwrap()).unwrap();
+        let mut img = std::ptr::null_mut();
+        assert_eq!(
+            unsafe { lp_image_from_rgb(px.as_ptr(), 64, 32, &mut img) },
+            LpStatus::Ok
+        );
+        assert_eq!(
+            unsafe { lp_image_write(img, c_path.as_ptr()) },
+            LpStatus::Ok
+        );
+        unsafe { lp_image_free(img) };
+        let (s, c) = yaw.sin_cos();
+        // Camera x = (c, s, 0), up = z, forward (-z) = (-s, c, 0); rows of the matrix.
+        probes.push(format!(
+            r#"{{"id": "p{k}", "position": [{x}, 0, 1.5], "hdr": "probes/p{k}.exr",
+                "world_from_camera": [[{c}, 0, {s}], [{s}, 0, {mc}], [0, 1, 0]]}}"#,
+            mc = -c
+        ));
+    }
+    std::fs::write(
+        dir.join("poses.json"),
+        format!(
+            r#"{{"scene": "two", "probes": [{}], "frames": []}}"#,
+            probes.join(",")
+        ),
+    )
+    .unwrap();
+}
+
+#[test]
+fn probe_sets_answer_by_position_and_bad_calls_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    two_constant_probes(dir.path());
+    let scene = CString::new(dir.path().to_str().unwrap()).unwrap();
+    let mut set = std::ptr::null_mut();
+    let st = unsafe { lp_probe_set_open(scene.as_ptr(), std::ptr::null(), &mut set) };
+    assert_eq!(st, LpStatus::Ok, "{}", last_error());
+    assert_eq!(unsafe { lp_probe_set_count(set) }, 2);
+    let mut p = [0f32; 3];
+    assert_eq!(
+        unsafe { lp_probe_set_position(set, 1, p.as_mut_ptr()) },
+        LpStatus::Ok
+    );
+    assert_eq!(p, [2.0, 0.0, 1.5]);
+    assert_eq!(
+        unsafe { lp_probe_set_position(set, 2, p.as_mut_ptr()) },
+        LpStatus::Invalid
+    );
+    assert!(last_error().contains("out of range"));
+    // A quarter of the way: 0.75 * 1 + 0.25 * 3 = 1.5 everywhere.
+    let at = [0.5f32, 0.0, 1.5];
+    let mut img = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { lp_probe_set_query(set, at.as_ptr(), 1, &mut img) },
+        LpStatus::Ok
+    );
+    let n = unsafe { lp_image_width(img) * lp_image_height(img) * 3 } as usize;
+    let data = unsafe { std::slice::from_raw_parts(lp_image_data(img), n) };
+    assert!(data.iter().all(|v| (v - 1.5).abs() < 1e-4));
+    // Unknown blend mode and NaN position are errors, not undefined behaviour.
+    let mut other = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { lp_probe_set_query(set, at.as_ptr(), 7, &mut other) },
+        LpStatus::Invalid
+    );
+    assert!(other.is_null());
+    let nan = [f32::NAN, 0.0, 0.0];
+    assert_eq!(
+        unsafe { lp_probe_set_query(set, nan.as_ptr(), 0, &mut other) },
+        LpStatus::Invalid
+    );
+    // Prefiltering: a constant probe gives E = pi L, every mip holds L.
+    let mut pf = std::ptr::null_mut();
+    assert_eq!(
+        unsafe { lp_prefilter(img, 0, 4, 64, &mut pf) },
+        LpStatus::Invalid
+    );
+    assert_eq!(
+        unsafe { lp_prefilter(img, 16, 4, 64, &mut pf) },
+        LpStatus::Ok
+    );
+    assert_eq!(unsafe { lp_prefiltered_mip_count(pf) }, 4);
+    for m in 0..4 {
+        let (mut r, mut s) = (0f32, 0u32);
+        assert_eq!(
+            unsafe { lp_prefiltered_mip_info(pf, m, &mut r, &mut s) },
+            LpStatus::Ok
+        );
+        assert!((r - m as f32 / 3.0).abs() < 1e-5);
+        for f in 0..6 {
+            let t = unsafe { lp_prefiltered_face(pf, m, f) };
+            assert!(!t.is_null());
+            let t = unsafe { std::slice::from_raw_parts(t, (s * s * 3) as usize) };
+            assert!(t.iter().all(|v| (v - 1.5).abs() < 0.02), "mip {m} face {f}");
+        }
+    }
+    assert!(unsafe { lp_prefiltered_face(pf, 0, 6) }.is_null());
+    let mut sh = [0f32; 27];
+    let mut e = [0f32; 3];
+    assert_eq!(
+        unsafe { lp_prefiltered_sh(pf, sh.as_mut_ptr()) },
+        LpStatus::Ok
+    );
+    let up = [0f32, 1.0, 0.0];
+    assert_eq!(
+        unsafe { lp_sh_irradiance(sh.as_ptr(), up.as_ptr(), e.as_mut_ptr()) },
+        LpStatus::Ok
+    );
+    assert!((e[0] - 1.5 * std::f32::consts::PI).abs() < 0.02, "{e:?}");
+    unsafe {
+        lp_prefiltered_free(pf);
+        lp_image_free(img);
+        lp_probe_set_free(set);
+        lp_probe_set_free(std::ptr::null_mut());
+        lp_prefiltered_free(std::ptr::null_mut());
+    }
+    // A missing scene names the file.
+    let missing = CString::new("/no/such/scene").unwrap();
+    let mut s2 = std::ptr::null_mut();
+    assert_ne!(
+        unsafe { lp_probe_set_open(missing.as_ptr(), std::ptr::null(), &mut s2) },
+        LpStatus::Ok
+    );
+    assert!(s2.is_null());
+    assert!(last_error().contains("/no/such/scene"), "{}", last_error());
+}
+
+#[test]
+fn a_cpp_program_lights_a_point_with_a_probe_set() {
+    assert!(
+        have("c++"),
+        "a C++ compiler (c++) is needed to check the C ABI"
+    );
+    let lib = lib_dir().expect("liblumiprobe.so next to the test binary");
+    let dir = tempfile::tempdir().unwrap();
+    two_constant_probes(dir.path());
+    let exe = dir.path().join("light_a_point");
+    let out = Command::new("c++")
+        .arg("-std=c++17")
+        .arg("-Wall")
+        .arg("-Werror")
+        .arg(manifest().join("tests/cpp/light_a_point.cpp"))
+        .arg("-I")
+        .arg(manifest().join("include"))
+        .arg("-L")
+        .arg(&lib)
+        .arg(format!("-Wl,-rpath,{}", lib.display()))
+        .arg("-llumiprobe")
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "c++ failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let run = Command::new(&exe)
+        .args([dir.path().to_str().unwrap(), "0.5", "0", "1.5"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "exit {:?}: {stdout} {}",
+        run.status.code(),
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let field = |name: &str| -> Vec<f32> {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(name))
+            .unwrap_or_else(|| panic!("no {name} in {stdout}"))
+            .split_whitespace()
+            .skip(1)
+            .map(|t| t.parse().unwrap())
+            .collect()
+    };
+    // Blended radiance 1.5: E = 1.5 pi; a white rough dielectric returns its
+    // diffuse 1.5 plus a small specular part (F0 = 0.04).
+    let e = field("irradiance");
+    assert!((e[0] - 1.5 * std::f32::consts::PI).abs() < 0.02, "{stdout}");
+    let c = field("shaded");
+    assert!(c[0] > 1.5 && c[0] < 1.5 * 1.1, "{stdout}");
+    assert_eq!(field("mips"), vec![4.0]);
+    // Bad input: the program reports lumiprobe's message and fails.
+    let bad = Command::new(&exe)
+        .args(["/no/such/scene", "0", "0", "0"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("/no/such/scene"));
+}

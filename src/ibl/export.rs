@@ -113,6 +113,20 @@ impl PrefilterOptions {
                 return Err(Error::Invalid(format!("{what} must be at least 1")));
             }
         }
+        // Upper bounds keep a mistaken argument from allocating without limit.
+        let limits = [
+            ("specular face size", self.specular.face_size, 8192),
+            ("specular mip count", self.specular.mip_count, 16),
+            ("specular samples", self.specular.samples, 1 << 16),
+            ("irradiance face size", self.irradiance_face_size, 4096),
+            ("BRDF table size", self.lut_size, 4096),
+            ("BRDF table samples", self.lut_samples, 1 << 16),
+        ];
+        for (what, v, max) in limits {
+            if v > max {
+                return Err(Error::Invalid(format!("{what} {v} is above {max}")));
+            }
+        }
         if let ShWindow::Hanning(w) | ShWindow::Lanczos(w) = self.sh_window {
             if !w.is_finite() || w <= 0.0 {
                 return Err(Error::Invalid(format!(
