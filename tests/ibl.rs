@@ -530,29 +530,3 @@ fn invalid_probes_and_directories_are_clear_errors() {
         "{e}"
     );
 }
-
-/// Not a test of speed (no assertion): prints how long the defaults take on a
-/// 512x256 probe. Run with `cargo test --release --test ibl -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn timing_512x256_defaults() {
-    let (env, _, _) = sun_env(512, 256);
-    let opts = PrefilterOptions::default();
-    for _ in 0..3 {
-        let t = std::time::Instant::now();
-        let _ = prefilter_specular(&env, &opts.specular);
-        let spec = t.elapsed();
-        let t = std::time::Instant::now();
-        let _ = Prefiltered::from_env(&env, &opts).unwrap();
-        let all = t.elapsed();
-        println!("prefilter_specular {spec:?}, Prefiltered::from_env {all:?}");
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let probe = dir.path().join("probe.exr");
-    lumiprobe::image::io::write_hdr(&probe, &env).unwrap();
-    let r = prefilter_to_dir(&probe, &dir.path().join("out"), &opts).unwrap();
-    println!(
-        "prefilter_to_dir: prefilter {:.3} s, total with I/O {:.3} s",
-        r.prefilter_seconds, r.total_seconds
-    );
-}
