@@ -134,6 +134,19 @@ struct FlowOpts {
     /// Seam-cost weight where the SDR frame measured (did not clip), relative to clipped regions
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_measured)]
     seam_measured: f32,
+    /// Weight of the colour term where the SDR frame clipped (a label darker than
+    /// the clip level contradicts the frame there).
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_dc_weight)]
+    clipped_dc_weight: f32,
+    /// Constant cost of a label change between pixels where the SDR frame clipped.
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_potts)]
+    clipped_potts: f32,
+    /// Weight of the log-exposure seam cost where the SDR frame clipped.
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_clipped)]
+    seam_clipped: f32,
+    /// Weight of the colour term against the confidence and distance terms.
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_weight)]
+    dc_weight: f32,
 }
 
 impl FlowOpts {
@@ -146,6 +159,10 @@ impl FlowOpts {
             no_smoothness: self.no_smoothness,
             dc_radius: self.dc_radius,
             seam_measured: self.seam_measured,
+            clipped_dc_weight: self.clipped_dc_weight,
+            clipped_potts: self.clipped_potts,
+            seam_clipped: self.seam_clipped,
+            dc_weight: self.dc_weight,
             ..Default::default()
         };
         p.flow.preset = self.flow_preset;

@@ -6,7 +6,7 @@ use lumiprobe::scene::Scene;
 use lumiprobe::synth::{synthesize, SynthParams};
 
 #[test]
-fn flow_and_hybrid_beat_the_nearest_probe_and_the_cut_beats_its_ablation() {
+fn flow_and_hybrid_beat_the_nearest_probe() {
     let tmp = tempfile::tempdir().unwrap();
     let p = SynthParams {
         width: 256,
