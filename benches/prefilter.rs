@@ -50,7 +50,10 @@ fn main() {
                 std::process::exit(2);
             }
         },
-        None => (sun_sky(512, 256), "synthetic sky with a 1e6 sun".to_string()),
+        None => (
+            sun_sky(512, 256),
+            "synthetic sky with a 1e6 sun".to_string(),
+        ),
     };
     let opts = PrefilterOptions::default();
     let s = &opts.specular;
