@@ -10,11 +10,23 @@
 //! ```
 //!
 //! over the 256 values of `g` and the `N` unknown `ln E_i`, subject to
-//! `g(128) = 0`, where `w` is the hat weight [`hat_weight`] and
-//! `g''(z) = g(z−1) − 2 g(z) + g(z+1)`. `α = 256 / Σ w²` normalises the data term
-//! so that it weighs about one per code whatever the number of samples, which makes
-//! `λ` independent of `N` (the paper's `λ` multiplies the squared term; its
-//! `gsolve` listing multiplies the rows, i.e. uses `√λ`, and does not normalise).
+//! `g(128) = 0`, where `w` is the hat weight [`hat_weight`] and `g''(z)` is a
+//! second difference (below). `α = 256 / Σ w²` normalises the data term so that it
+//! weighs about one per code whatever the number of samples, which makes `λ`
+//! independent of `N` (the paper's `λ` multiplies the squared term; its `gsolve`
+//! listing multiplies the rows, i.e. uses `√λ`, and does not normalise).
+//!
+//! **Smoothness.** The paper's `g(z−1) − 2 g(z) + g(z+1)` vanishes on straight
+//! lines `g = p + q z`, i.e. on an *exponential* response, so wherever the data
+//! are silent — codes no pixel shows, the toe and shoulder where the hat weight
+//! fades, or every code when `λ` is large — it bends the curve towards an
+//! exponential (continuing `g = 2.2 ln z`, a gamma curve, in a straight line
+//! from code 20 down to code 1 lands 4.5 too high). Here `g''` is the second
+//! difference against `ln z` instead, `g''(z) = a_z g(z−1) − 2 g(z) + b_z g(z+1)`
+//! with `a_z + b_z = 2` (`a_z ≈ 1 − 1/2z`, `b_z ≈ 1 + 1/2z`), which vanishes on
+//! `g = p + q ln z`: a power law `f⁻¹(z) ∝ z^q`, the shape of real responses
+//! (gamma curves). It differs from the paper's row by `O(1/z)`, so `λ` keeps its
+//! meaning; at `z = 1` (where `ln 0` is undefined) the paper's row is used.
 //!
 //! **Solver.** The `ln E_i` are eliminated exactly (for a fixed `g` each is a
 //! weighted mean), which leaves a dense symmetric 255 × 255 system in `g` (the
@@ -23,8 +35,10 @@
 //! conditioning), factored by a Cholesky decomposition written here, and polished
 //! by two steps of iterative refinement. A tiny smoothness floor
 //! ([`SMOOTHNESS_FLOOR`], unweighted) keeps the system definite for any `λ ≥ 0`,
-//! including `λ = 0`, by interpolating (or extrapolating linearly) the codes the
-//! samples never show.
+//! including `λ = 0`, by interpolating (or extrapolating along a power law) the
+//! codes the samples never show. Codes 0 and 255 have zero hat weight, so they
+//! are set by the smoothness rows of codes 1 and 254 alone: extrapolated from
+//! their two neighbours.
 //!
 //! **Samples.** Pixels are stratified by the sum of their codes over all exposures
 //! — a monotone function of radiance, so the strata span the scene's whole dynamic
@@ -586,12 +600,12 @@ fn fit_channel(
     if equations == 0 {
         return Err("no pixel is unclipped in two exposures".into());
     }
-    // Smoothness rows: (λ w(z)² + floor) (g(z-1) - 2 g(z) + g(z+1))².
+    // Smoothness rows: (λ w(z)² + floor) g''(z)², g'' against ln z (module docs).
     for z in 1..CODES - 1 {
         let hw = hat_weight(z as u8);
         let s = lambda * hw * hw + SMOOTHNESS_FLOOR;
         let idx = [z - 1, z, z + 1];
-        let coef = [1.0, -2.0, 1.0];
+        let coef = smoothness_row(z);
         for a in 0..3 {
             for bb in 0..3 {
                 m[idx[a] * n + idx[bb]] += s * coef[a] * coef[bb];
@@ -663,6 +677,22 @@ fn fit_channel(
         equations,
         rms: if sw > 0.0 { (sse / sw).sqrt() } else { 0.0 },
     })
+}
+
+/// Coefficients of the smoothness row of code `z` (`1 ≤ z ≤ 254`) on
+/// `g(z−1), g(z), g(z+1)`: the three-point second difference against `u = ln z`,
+/// scaled so that the outer coefficients sum to 2 like the paper's `[1, −2, 1]`.
+/// It vanishes on `g = p + q ln z`. Code 1 (whose left neighbour is `ln 0`) uses
+/// `[1, −2, 1]`.
+fn smoothness_row(z: usize) -> [f64; 3] {
+    if z < 2 {
+        return [1.0, -2.0, 1.0];
+    }
+    let u = |k: usize| (k as f64).ln();
+    let left = 1.0 / (u(z) - u(z - 1));
+    let right = 1.0 / (u(z + 1) - u(z));
+    let s = 2.0 / (left + right);
+    [s * left, -2.0, s * right]
 }
 
 /// Solves the symmetric positive definite system `a x = b` (`n x n`, row-major):
@@ -779,6 +809,24 @@ pub(crate) fn isotonic(v: &mut [f64], weights: &[f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smoothness_rows_vanish_on_power_laws() {
+        for z in 2..CODES - 1 {
+            let r = smoothness_row(z);
+            assert!((r[0] + r[2] - 2.0).abs() < 1e-12, "{z}");
+            for (p, q) in [(0.3, 2.2), (-1.0, 1.0)] {
+                let g = |k: usize| p + q * (k as f64).ln();
+                let v = r[0] * g(z - 1) + r[1] * g(z) + r[2] * g(z + 1);
+                assert!(v.abs() < 1e-9, "{z}: {v}");
+            }
+            // Close to the paper's [1, -2, 1] at mid codes.
+            if z >= 64 {
+                assert!((r[0] - 1.0).abs() < 0.01 && (r[2] - 1.0).abs() < 0.01);
+            }
+        }
+        assert_eq!(smoothness_row(1), [1.0, -2.0, 1.0]);
+    }
 
     #[test]
     fn isotonic_pools_violators() {

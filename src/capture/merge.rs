@@ -5,7 +5,8 @@
 //! response's log exposure per code ([`ResponseCurve`]) and `w` the hat weight
 //! ([`hat_weight`]: zero at codes 0 and 255). This is the paper's estimator; it
 //! treats every unclipped observation as a measurement of the same `ln E` and
-//! trusts mid-range codes most.
+//! trusts mid-range codes most. Frames that share an exposure time count as one
+//! exposure: each of `k` such frames weighs `w(Z)/k` (see **Inputs**).
 //!
 //! **Clipping.** A channel whose every observation has zero weight is handled
 //! explicitly: saturated in the darkest frame (code 255) it takes the darkest
@@ -17,8 +18,14 @@
 //! of the light they are, so the under-estimate is reported instead of silent.
 //!
 //! **Inputs.** Exposures may come in any order and may repeat a time; one
-//! exposure is a plain linearisation. Exposure times that are zero, negative or
-//! not finite, and images of different sizes, are errors naming the file.
+//! exposure is a plain linearisation. Frames with the same exposure time are
+//! averaged into one exposure rather than each weighing as a full one: a file
+//! given twice then changes nothing, and repeated shots reduce noise without
+//! tilting the bracket towards their exposure (with the plain weights, a
+//! duplicated frame would double its say in every pixel, which moves the
+//! noise-dominated dark pixels by ten percent or more). Exposure times that are zero,
+//! negative or not finite, and images of different sizes, are errors naming the
+//! file.
 
 use super::debevec::{hat_weight, ResponseCurve, CODES};
 use crate::error::{Error, Result};
@@ -185,6 +192,17 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
     let frames: Vec<&[u8]> = order.iter().map(|&j| exps[j].image.data()).collect();
     let ln_t: Vec<f64> = order.iter().map(|&j| exps[j].time_s.ln()).collect();
     let p = frames.len();
+    // Weight share of each (sorted) frame: 1/k for k frames of one exposure time.
+    let mut share = vec![1.0f64; p];
+    let mut first = 0;
+    while first < p {
+        let t0 = exps[order[first]].time_s;
+        let end = (first + 1..p)
+            .find(|&j| exps[order[j]].time_s > t0 * (1.0 + 1e-9))
+            .unwrap_or(p);
+        share[first..end].fill(1.0 / (end - first) as f64);
+        first = end;
+    }
     let mut hat = [0.0f64; CODES];
     for (z, v) in hat.iter_mut().enumerate() {
         *v = hat_weight(z as u8);
@@ -233,7 +251,7 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
                     let mut den = 0.0f64;
                     for j in 0..p {
                         let z = frames[j][3 * i + c] as usize;
-                        let wz = hat[z];
+                        let wz = hat[z] * share[j];
                         num += wz * (g[c][z] - ln_t[j]);
                         den += wz;
                     }
@@ -355,7 +373,8 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
         let (a, b) = (&exps[pair[0]], &exps[pair[1]]);
         if b.time_s <= a.time_s * (1.0 + 1e-9) {
             warnings.push(format!(
-                "{} and {} have the same exposure time ({} s); both are used",
+                "{} and {} have the same exposure time ({} s); both are used, averaged \
+                 as one exposure",
                 a.name.display(),
                 b.name.display(),
                 a.time_s
