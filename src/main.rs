@@ -333,6 +333,9 @@ enum Cmd {
         #[arg(long, default_value_t = 10)]
         fps: u32,
     },
+    /// Merge exposure brackets into one HDR panorama (Debevec-Malik response
+    /// recovery, hat-weighted merge); reports what clipped even in the darkest frame.
+    Merge(lumiprobe::capture::MergeArgs),
     /// Scores for two HDR panoramas (the second is the reference).
     Compare {
         /// Prediction.
@@ -833,6 +836,9 @@ fn real_main(cli: Cli) -> Result<()> {
             if !cli.quiet {
                 eprintln!("wrote {} and {}", a.display(), b.display());
             }
+        }
+        Cmd::Merge(args) => {
+            lumiprobe::capture::run_merge(&args)?;
         }
         Cmd::Compare { a, b } => {
             let pa = io::read_hdr(&a)?;

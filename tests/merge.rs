@@ -590,28 +590,6 @@ fn cli_merges_files_with_exif_or_given_times() {
     assert!((r.frames[0].time_s - 1.0 / 480.0).abs() < 1e-9);
 }
 
-#[test]
-fn merging_seven_512x256_brackets_is_fast() {
-    let hdr = known_hdr(512, 256);
-    let exps = bracket(&hdr, &documented(), &[-3, -2, -1, 0, 1, 2, 3], 1);
-    let images: Vec<&SdrImage> = exps.iter().map(|e| &e.image).collect();
-    let times: Vec<f64> = exps.iter().map(|e| e.time_s).collect();
-    let t0 = std::time::Instant::now();
-    let rec = recover(&images, &times, &RecoverOptions::default()).unwrap();
-    let t1 = t0.elapsed();
-    let m = merge(&exps, &rec.curve, &MergeOptions::default()).unwrap();
-    let t2 = t0.elapsed();
-    println!(
-        "recover {:.1} ms, merge {:.1} ms, total {:.1} ms",
-        t1.as_secs_f64() * 1e3,
-        (t2 - t1).as_secs_f64() * 1e3,
-        t2.as_secs_f64() * 1e3
-    );
-    assert_eq!(m.image.width(), 512);
-    // Generous bound for a shared 2-core machine in a debug-ish test profile.
-    assert!(t2.as_secs_f64() < 2.0, "{t2:?}");
-}
-
 // ---------------------------------------------------------------------------
 // Evaluation on the dataset (ignored; run by hand, see `evaluate_dataset`).
 // ---------------------------------------------------------------------------
