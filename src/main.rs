@@ -185,6 +185,10 @@ enum Cmd {
         /// Working size WxH (default: the frames' size).
         #[arg(long, value_parser = parse_size)]
         size: Option<(usize, usize)>,
+        /// Recover the frames' exposure gain against the probes (`lumiprobe
+        /// calibrate`) instead of trusting the scene file's.
+        #[arg(long)]
+        calibrate: bool,
         #[command(flatten)]
         warp: WarpOpts,
         #[command(flatten)]
@@ -332,6 +336,12 @@ enum Cmd {
         /// Frames per second of the video.
         #[arg(long, default_value_t = 10)]
         fps: u32,
+    },
+    /// Recover the SDR frames' exposure gain against the probes (radiance =
+    /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
+    Calibrate {
+        /// Scene folder (with poses.json) or the poses.json itself.
+        scene: PathBuf,
     },
     /// Merge exposure brackets into one HDR panorama (Debevec-Malik response
     /// recovery, hat-weighted merge); reports what clipped even in the darkest frame.
@@ -536,12 +546,26 @@ fn real_main(cli: Cli) -> Result<()> {
             out,
             method,
             size,
+            calibrate,
             warp,
             flow,
         } => {
-            let scene = Scene::load(&scene)?;
+            let mut scene = Scene::load(&scene)?;
             for w in &scene.warnings {
                 eprintln!("warning: {w}");
+            }
+            if calibrate {
+                let est = lumiprobe::capture::calibrate::calibrate_gain(
+                    &scene,
+                    &lumiprobe::capture::calibrate::CalibrateOptions::default(),
+                )?;
+                if !cli.quiet {
+                    eprintln!(
+                        "calibrated gain {:.5} from {} frames (log IQR {:.3}; scene file: {:.5})",
+                        est.gain, est.frames_used, est.log_iqr, scene.path_gain
+                    );
+                }
+                scene.path_gain = est.gain;
             }
             let params = run_params(method, size, &warp, &flow);
             let report = pipeline::run(
@@ -836,6 +860,22 @@ fn real_main(cli: Cli) -> Result<()> {
             if !cli.quiet {
                 eprintln!("wrote {} and {}", a.display(), b.display());
             }
+        }
+        Cmd::Calibrate { scene } => {
+            let scene = Scene::load(&scene)?;
+            let est = lumiprobe::capture::calibrate::calibrate_gain(
+                &scene,
+                &lumiprobe::capture::calibrate::CalibrateOptions::default(),
+            )?;
+            println!(
+                "{}: recovered gain {:.5} from {} frames (spread: log IQR {:.3}); scene file says {:.5} ({:+.2}%)",
+                scene.name,
+                est.gain,
+                est.frames_used,
+                est.log_iqr,
+                scene.path_gain,
+                100.0 * (est.gain / scene.path_gain - 1.0)
+            );
         }
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args)?;

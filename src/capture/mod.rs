@@ -10,7 +10,10 @@
 //!   frame ([`MergeReport`]): a merge under-estimates those sources, and the user
 //!   should be told by how much of the sphere and of the light.
 //! * [`cli`] is the `lumiprobe merge` command.
+//! * [`calibrate`] recovers the SDR frames' exposure gain against the probes, so
+//!   linearised frames and probes share one radiance scale.
 
+pub mod calibrate;
 pub mod cli;
 pub mod debevec;
 pub mod exif;

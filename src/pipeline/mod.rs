@@ -235,6 +235,8 @@ pub fn run(
                 settings.clone(),
                 file_stamp(&frame.sdr),
                 format!("{:?}", frame.pose),
+                // The frame's radiometry: a new response or gain changes every pixel.
+                format!("{:?} {}", scene.response, scene.path_gain),
                 env!("CARGO_PKG_VERSION").to_string(),
             ];
             for &u in &used {
