@@ -12,11 +12,15 @@
 //! * [`cli`] is the `lumiprobe merge` command.
 //! * [`calibrate`] recovers the SDR frames' exposure gain against the probes, so
 //!   linearised frames and probes share one radiance scale.
+//! * [`fisheye`] turns a side-by-side dual-fisheye image (what two-lens cameras
+//!   such as the Gear 360 store) into an equirect panorama
+//!   ([`fisheye::dual_fisheye_to_equirect`]).
 
 pub mod calibrate;
 pub mod cli;
 pub mod debevec;
 pub mod exif;
+pub mod fisheye;
 pub mod merge;
 
 pub use cli::{run_merge, MergeArgs};
