@@ -343,6 +343,23 @@ enum Cmd {
         /// Scene folder (with poses.json) or the poses.json itself.
         scene: PathBuf,
     },
+    /// Convert a side-by-side dual-fisheye image (two-lens 360° cameras such as
+    /// the Gear 360) to an equirect panorama: 8-bit in, 8-bit out; HDR in, HDR out.
+    Fisheye {
+        /// Input image (.jpg/.png, or .exr/.hdr/.pfm).
+        input: PathBuf,
+        /// Output image, same kind as the input.
+        output: PathBuf,
+        /// Lens field of view in degrees (at least 180).
+        #[arg(long, default_value_t = 195.0)]
+        fov: f32,
+        /// Width in degrees of the cross-fade where both lenses see.
+        #[arg(long, default_value_t = lumiprobe::capture::fisheye::DEFAULT_BLEND_DEG)]
+        blend: f32,
+        /// Output size WxH (default: the input's size).
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(usize, usize)>,
+    },
     /// Merge exposure brackets into one HDR panorama (Debevec-Malik response
     /// recovery, hat-weighted merge); reports what clipped even in the darkest frame.
     Merge(lumiprobe::capture::MergeArgs),
@@ -876,6 +893,37 @@ fn real_main(cli: Cli) -> Result<()> {
                 scene.path_gain,
                 100.0 * (est.gain / scene.path_gain - 1.0)
             );
+        }
+        Cmd::Fisheye {
+            input,
+            output,
+            fov,
+            blend,
+            size,
+        } => {
+            use lumiprobe::capture::fisheye::{dual_fisheye_to_equirect, DualFisheye};
+            let cfg = DualFisheye {
+                blend_deg: blend,
+                ..DualFisheye::new(fov)
+            };
+            let named = |e: Error| match e {
+                Error::Invalid(m) => Error::Invalid(format!("{}: {m}", input.display())),
+                other => other,
+            };
+            if io::Format::from_extension(&input).is_some_and(|f| f.is_hdr()) {
+                let img = io::read_hdr(&input)?;
+                let (w, h) = size.unwrap_or((img.width(), img.height()));
+                let out = dual_fisheye_to_equirect(&img, &cfg, w, h).map_err(named)?;
+                io::write_hdr(&output, &out)?;
+            } else {
+                let img = io::read_sdr(&input)?;
+                let (w, h) = size.unwrap_or((img.width(), img.height()));
+                let out = dual_fisheye_to_equirect(&img, &cfg, w, h).map_err(named)?;
+                io::write_sdr(&output, &out)?;
+            }
+            if !cli.quiet {
+                eprintln!("wrote {}", output.display());
+            }
         }
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args)?;

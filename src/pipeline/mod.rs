@@ -186,6 +186,61 @@ fn fingerprint(parts: &[String]) -> String {
     format!("{h:016x}")
 }
 
+/// The probes `frame` uses (nearest first) and the fingerprint of everything its
+/// output depends on: settings, the frame's file, pose and radiometry, the probes'
+/// files and poses, and the program version.
+fn frame_inputs(
+    scene: &Scene,
+    frame: &Frame,
+    params: &RunParams,
+    settings: &str,
+) -> (Vec<usize>, String) {
+    let mut used = scene.probes_by_distance(frame.pose.position);
+    used.truncate(params.method.probes_needed());
+    let mut parts = vec![
+        settings.to_string(),
+        file_stamp(&frame.sdr),
+        format!("{:?}", frame.pose),
+        // The frame's radiometry: a new response or gain changes every pixel.
+        format!("{:?} {}", scene.response, scene.path_gain),
+        env!("CARGO_PKG_VERSION").to_string(),
+    ];
+    for &u in &used {
+        let m = &scene.probes[u];
+        parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
+        parts.push(format!("{:?}", m.pose));
+    }
+    (used, fingerprint(&parts))
+}
+
+/// The frame's record when its probe and sidecar in `out_dir` are both present
+/// and were made from inputs with fingerprint `fp`.
+fn up_to_date(out_dir: &Path, frame: &Frame, fp: &str) -> Option<FrameRecord> {
+    let out = out_dir.join(format!("{}.exr", frame.id));
+    let side = out_dir.join(format!("{}.json", frame.id));
+    if !out.exists() {
+        return None;
+    }
+    let text = std::fs::read_to_string(&side).ok()?;
+    let rec = serde_json::from_str::<FrameRecord>(&text).ok()?;
+    (rec.fingerprint == fp).then_some(rec)
+}
+
+/// Ids of the frames `run` would compute (outputs missing or out of date); the
+/// others it would keep.
+pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Result<Vec<String>> {
+    let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
+    Ok(scene
+        .frames
+        .iter()
+        .filter(|f| {
+            let (_, fp) = frame_inputs(scene, f, params, &settings);
+            up_to_date(out_dir, f, &fp).is_none()
+        })
+        .map(|f| f.id.clone())
+        .collect())
+}
+
 /// Runs the configured method over every frame of `scene`, writing
 /// `out_dir/<frame id>.exr`, a sidecar `<frame id>.json` per frame and
 /// `out_dir/report.json`. Frames whose outputs match the current inputs and
@@ -227,38 +282,17 @@ pub fn run(
         .frames
         .par_iter()
         .map(|frame| {
-            let mut used = scene.probes_by_distance(frame.pose.position);
-            used.truncate(params.method.probes_needed());
+            let (used, fp) = frame_inputs(scene, frame, params, &settings);
             let pi = used[0];
             let probe_meta = &scene.probes[pi];
-            let mut parts = vec![
-                settings.clone(),
-                file_stamp(&frame.sdr),
-                format!("{:?}", frame.pose),
-                // The frame's radiometry: a new response or gain changes every pixel.
-                format!("{:?} {}", scene.response, scene.path_gain),
-                env!("CARGO_PKG_VERSION").to_string(),
-            ];
-            for &u in &used {
-                let m = &scene.probes[u];
-                parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
-                parts.push(format!("{:?}", m.pose));
-            }
-            let fp = fingerprint(&parts);
             let out = out_dir.join(format!("{}.exr", frame.id));
             let side = out_dir.join(format!("{}.json", frame.id));
-            if out.exists() {
-                if let Ok(text) = std::fs::read_to_string(&side) {
-                    if let Ok(rec) = serde_json::from_str::<FrameRecord>(&text) {
-                        if rec.fingerprint == fp {
-                            progress(
-                                done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
-                                total,
-                            );
-                            return Ok((rec, true));
-                        }
-                    }
-                }
+            if let Some(rec) = up_to_date(out_dir, frame, &fp) {
+                progress(
+                    done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
+                    total,
+                );
+                return Ok((rec, true));
             }
             let sdr = load_frame(frame, params.size)?;
             let (_, repaired) = get_probe(pi)?;
