@@ -174,14 +174,19 @@ impl FlowOpts {
 enum Cmd {
     /// Predict an HDR probe for every frame of a scene.
     Run {
-        /// Scene folder (with poses.json) or the poses.json itself.
+        /// Scene folder (with poses.json), the poses.json itself, or a manifest
+        /// (.toml, see `lumiprobe init`).
         scene: PathBuf,
-        /// Output folder.
+        /// Output folder (default: the manifest's `output.folder`).
         #[arg(long)]
-        out: PathBuf,
-        /// Method.
-        #[arg(long, value_enum, default_value_t = Method::Warp)]
-        method: Method,
+        out: Option<PathBuf>,
+        /// Method (default: the manifest's, else fusion).
+        #[arg(long, value_enum)]
+        method: Option<Method>,
+        /// Print what would be done (stages given, cached or to compute; frames
+        /// up to date) and stop.
+        #[arg(long)]
+        dry_run: bool,
         /// Working size WxH (default: the frames' size).
         #[arg(long, value_parser = parse_size)]
         size: Option<(usize, usize)>,
@@ -243,6 +248,11 @@ enum Cmd {
         /// Print JSON (table and per-frame scores) instead of the text table.
         #[arg(long)]
         json: bool,
+        /// Rescale each prediction to the truth's global scale first (one factor
+        /// per folder, reported): for runs on probes merged from brackets, whose
+        /// absolute scale is unknowable.
+        #[arg(long)]
+        rescale: bool,
         /// Folder of glTF models (.glb/.gltf): also render each lit by every
         /// prediction, baseline and the ground truth, and score the renders (the
         /// thesis's Table 5.1).
@@ -336,6 +346,18 @@ enum Cmd {
         /// Frames per second of the video.
         #[arg(long, default_value_t = 10)]
         fps: u32,
+    },
+    /// Draft a manifest (lumiprobe.toml) for a capture folder: probes (HDR files or
+    /// bracket folders), frames (a folder or a video), poses.json when present.
+    Init {
+        /// The capture folder.
+        folder: PathBuf,
+        /// Where to write the manifest (default: FOLDER/lumiprobe.toml).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Replace an existing manifest.
+        #[arg(long)]
+        force: bool,
     },
     /// Recover the SDR frames' exposure gain against the probes (radiance =
     /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
@@ -564,10 +586,37 @@ fn real_main(cli: Cli) -> Result<()> {
             method,
             size,
             calibrate,
+            dry_run,
             warp,
             flow,
         } => {
-            let mut scene = Scene::load(&scene)?;
+            let is_manifest = scene.extension().is_some_and(|e| e == "toml");
+            let (mut scene, out, method, size) = if is_manifest {
+                let m = lumiprobe::scene::manifest::Manifest::load(&scene)?;
+                let (prepared, plan) = lumiprobe::pipeline::plan::prepare(&m, dry_run)?;
+                print!("{}", plan.to_text());
+                let mm = match m.output.method.as_str() {
+                    "warp" => Method::Warp,
+                    "flow" => Method::Flow,
+                    "hybrid" => Method::Hybrid,
+                    _ => Method::Fusion,
+                };
+                let out = out.unwrap_or_else(|| m.output.folder.clone());
+                match prepared {
+                    Some(s) => (s, out, method.unwrap_or(mm), size.or(m.output.size)),
+                    None => return Ok(()),
+                }
+            } else {
+                let out = out.ok_or_else(|| {
+                    Error::Invalid("--out is required unless the scene is a manifest".into())
+                })?;
+                (
+                    Scene::load(&scene)?,
+                    out,
+                    method.unwrap_or(Method::Fusion),
+                    size,
+                )
+            };
             for w in &scene.warnings {
                 eprintln!("warning: {w}");
             }
@@ -585,6 +634,17 @@ fn real_main(cli: Cli) -> Result<()> {
                 scene.path_gain = est.gain;
             }
             let params = run_params(method, size, &warp, &flow);
+            if dry_run {
+                let pending = pipeline::pending_frames(&scene, &out, &params)?;
+                println!(
+                    "frames: {} of {} to compute into {} ({} up to date)",
+                    pending.len(),
+                    scene.frames.len(),
+                    out.display(),
+                    scene.frames.len() - pending.len()
+                );
+                return Ok(());
+            }
             let report = pipeline::run(
                 &scene,
                 &out,
@@ -697,6 +757,7 @@ fn real_main(cli: Cli) -> Result<()> {
             scene,
             pred,
             json,
+            rescale,
             models,
             render_frames,
             render_size,
@@ -718,7 +779,16 @@ fn real_main(cli: Cli) -> Result<()> {
                 .iter()
                 .map(|(l, d)| (l.clone(), d.as_path()))
                 .collect();
-            let ev = lumiprobe::pipeline::evaluate::evaluate(&scene, &refs)?;
+            let ev = if rescale {
+                lumiprobe::pipeline::evaluate::evaluate_rescaled(&scene, &refs)?
+            } else {
+                lumiprobe::pipeline::evaluate::evaluate(&scene, &refs)?
+            };
+            if !json {
+                for (l, f) in &ev.scales {
+                    println!("{l}: rescaled by {f:.5}");
+                }
+            }
             if json {
                 println!(
                     "{}",
@@ -876,6 +946,22 @@ fn real_main(cli: Cli) -> Result<()> {
             let (a, b) = write_render(&out, &r, exposure)?;
             if !cli.quiet {
                 eprintln!("wrote {} and {}", a.display(), b.display());
+            }
+        }
+        Cmd::Init { folder, out, force } => {
+            let text = lumiprobe::scene::manifest::Manifest::draft(&folder)?;
+            let path = out.unwrap_or_else(|| folder.join("lumiprobe.toml"));
+            if path.exists() && !force {
+                return Err(Error::Invalid(format!(
+                    "{} exists; pass --force to replace it",
+                    path.display()
+                )));
+            }
+            lumiprobe::fsutil::write_atomic(&path, text.as_bytes())?;
+            // Check that the draft reads back.
+            lumiprobe::scene::manifest::Manifest::load(&path)?;
+            if !cli.quiet {
+                eprintln!("wrote {}", path.display());
             }
         }
         Cmd::Calibrate { scene } => {

@@ -37,6 +37,62 @@ pub struct SceneEval {
     pub table: MetricsTable,
     /// Per-frame scores.
     pub frames: Vec<FrameScores>,
+    /// `(label, factor)` for predictions rescaled to the truth's global scale
+    /// ([`evaluate_rescaled`]); empty otherwise.
+    #[serde(default)]
+    pub scales: Vec<(String, f64)>,
+}
+
+/// Mean luminance of an image (solid-angle weighting is not needed for a ratio of
+/// two panoramas of the same size and layout).
+fn mean_luminance(img: &HdrImage) -> f64 {
+    let n = (img.width() * img.height()).max(1) as f64;
+    img.pixels()
+        .map(|p| crate::image::luminance(p) as f64)
+        .sum::<f64>()
+        / n
+}
+
+/// Like [`evaluate`], with every prediction first multiplied by one global factor
+/// per folder: the median over frames of the truth's mean luminance over the
+/// prediction's. For predictions whose absolute scale is unknowable (probes merged
+/// from brackets without a calibrated camera are relative radiance); the factors
+/// are reported in [`SceneEval::scales`]. Baselines are not rescaled.
+pub fn evaluate_rescaled(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
+    let mut factors = Vec::new();
+    for (label, dir) in preds {
+        let mut logs = Vec::new();
+        for frame in &scene.frames {
+            let Some(gt_path) = &frame.ground_truth else {
+                continue;
+            };
+            let p = prediction_path(dir, frame);
+            if !p.exists() {
+                continue;
+            }
+            let (a, b) = (
+                mean_luminance(&io::read_hdr(gt_path)?),
+                mean_luminance(&io::read_hdr(&p)?),
+            );
+            if a > 0.0 && b > 0.0 && (a / b).is_finite() {
+                logs.push((a / b).ln());
+            }
+        }
+        logs.sort_by(f64::total_cmp);
+        let f = if logs.is_empty() {
+            1.0
+        } else {
+            logs[logs.len() / 2].exp()
+        };
+        factors.push((label.clone(), f));
+    }
+    let mut ev = evaluate_scaled(
+        scene,
+        preds,
+        &factors.iter().map(|x| x.1).collect::<Vec<_>>(),
+    )?;
+    ev.scales = factors;
+    Ok(ev)
 }
 
 /// The nearest-probe baseline for a frame at the ground truth's size.
@@ -60,6 +116,10 @@ pub fn nearest_probe_baseline(
 /// Scores each `(label, prediction folder)` and both baselines on every frame that
 /// has ground truth. Predictions of another size are resampled to the truth's.
 pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
+    evaluate_scaled(scene, preds, &vec![1.0; preds.len()])
+}
+
+fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) -> Result<SceneEval> {
     use rayon::prelude::*;
     let per_frame: Vec<Result<Option<FrameScores>>> = (0..scene.frames.len())
         .into_par_iter()
@@ -70,7 +130,7 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
             };
             let gt = io::read_hdr(gt_path)?;
             let mut scores = Vec::new();
-            for (label, dir) in preds {
+            for ((label, dir), &f) in preds.iter().zip(factors) {
                 let p = prediction_path(dir, frame);
                 if !p.exists() {
                     return Err(Error::Invalid(format!(
@@ -79,7 +139,10 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
                         frame.id
                     )));
                 }
-                let pred = io::read_hdr(&p)?;
+                let mut pred = io::read_hdr(&p)?;
+                if f != 1.0 {
+                    pred.data_mut().iter_mut().for_each(|v| *v *= f as f32);
+                }
                 scores.push((label.clone(), compare_resized(&pred, &gt)?));
             }
             let base = nearest_probe_baseline(scene, i, gt.width(), gt.height())?;
@@ -115,6 +178,7 @@ pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
         scene: scene.name.clone(),
         table,
         frames,
+        scales: Vec::new(),
     })
 }
 

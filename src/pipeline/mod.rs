@@ -6,6 +6,7 @@ pub mod bench;
 pub mod composite;
 pub mod demo;
 pub mod evaluate;
+pub mod plan;
 pub mod probe_set;
 pub mod render_eval;
 

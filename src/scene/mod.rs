@@ -2,6 +2,8 @@
 //! the camera's radiometry. Reads the dataset layout (`poses.json` beside `probes/`
 //! and `path/`).
 
+pub mod manifest;
+
 use crate::error::{Error, Result};
 use crate::sphere::orthonormalize;
 use crate::tonemap::Response;
@@ -48,6 +50,8 @@ pub struct Probe {
     pub hdr: Option<PathBuf>,
     /// The exposure brackets it can be merged from.
     pub brackets: Vec<Bracket>,
+    /// A second, wider bracket set (`brackets_wide` in the dataset layout).
+    pub brackets_wide: Vec<Bracket>,
 }
 
 /// One SDR frame of the walk.
@@ -101,6 +105,8 @@ struct RawEntry {
     hdr: Option<String>,
     #[serde(default)]
     brackets: Vec<RawBracket>,
+    #[serde(default)]
+    brackets_wide: Vec<RawBracket>,
     #[serde(default)]
     sdr: Option<String>,
     #[serde(default)]
@@ -196,20 +202,23 @@ impl Scene {
                 let p = root.join("probes").join(format!("{}.exr", e.id));
                 p.exists().then_some(p)
             });
-            let brackets = e
-                .brackets
-                .iter()
-                .map(|b| Bracket {
-                    file: resolve(&b.file),
-                    ev: b.ev,
-                    exposure_time_s: b.exposure_time_s,
-                })
-                .collect();
+            let to_brackets = |list: &[RawBracket]| -> Vec<Bracket> {
+                list.iter()
+                    .map(|b| Bracket {
+                        file: resolve(&b.file),
+                        ev: b.ev,
+                        exposure_time_s: b.exposure_time_s,
+                    })
+                    .collect()
+            };
+            let brackets = to_brackets(&e.brackets);
+            let brackets_wide = to_brackets(&e.brackets_wide);
             probes.push(Probe {
                 id: e.id.clone(),
                 pose,
                 hdr,
                 brackets,
+                brackets_wide,
             });
         }
         let mut frames = Vec::new();

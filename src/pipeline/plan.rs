@@ -1,0 +1,433 @@
+//! From a [`Manifest`] to a [`Scene`], doing only what the manifest leaves open:
+//! frames extracted from a video when the walk is a video, the camera response
+//! recovered when it is not given, probes merged when only brackets are given,
+//! the frames' gain calibrated when it is `auto`. Each product is cached under
+//! `<output>/cache/` with a key made of its inputs (file sizes and times) and
+//! settings, so a rerun recomputes only what changed; [`Plan`] says, stage by
+//! stage, what was given, taken from the cache or computed (with `dry_run`: would
+//! be computed).
+
+use crate::capture::calibrate::{calibrate_gain, CalibrateOptions};
+use crate::capture::cli::load_exposures;
+use crate::capture::{merge, recover, MergeOptions, RecoverOptions, ResponseCurve};
+use crate::error::{Error, Result};
+use crate::image::io;
+use crate::scene::manifest::{FrameSource, GainChoice, Manifest, ResponseChoice};
+use crate::scene::{Frame, Pose, Probe, Scene};
+use std::path::{Path, PathBuf};
+
+/// What happened to one stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StageState {
+    /// The manifest gave the result; nothing to do.
+    Given,
+    /// Taken from the cache: its inputs have not changed.
+    Cached,
+    /// Computed now (or, in a dry run, would be).
+    Computed,
+}
+
+/// One stage of the plan.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stage {
+    /// Stage name, e.g. `merge probe_00`.
+    pub name: String,
+    /// What it did or would do.
+    pub state: StageState,
+    /// Details for the user (where from, figures).
+    pub detail: String,
+}
+
+/// The stages of preparing a manifest's scene.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Plan {
+    /// In order.
+    pub stages: Vec<Stage>,
+}
+
+impl Plan {
+    fn push(&mut self, name: impl Into<String>, state: StageState, detail: impl Into<String>) {
+        self.stages.push(Stage {
+            name: name.into(),
+            state,
+            detail: detail.into(),
+        });
+    }
+
+    /// One line per stage.
+    pub fn to_text(&self) -> String {
+        let mut s = String::new();
+        for st in &self.stages {
+            let what = match st.state {
+                StageState::Given => "given",
+                StageState::Cached => "cached",
+                StageState::Computed => "compute",
+            };
+            s += &format!("{:<8} {:<28} {}\n", what, st.name, st.detail);
+        }
+        s
+    }
+}
+
+fn stamp(p: &Path) -> String {
+    match std::fs::metadata(p) {
+        Ok(m) => format!("{}:{}:{:?}", p.display(), m.len(), m.modified().ok()),
+        Err(_) => format!("{}:missing", p.display()),
+    }
+}
+
+/// FNV-1a 64 of the parts, as 16 hex digits: a cache key.
+fn key(parts: &[String]) -> String {
+    let mut h: u64 = 0xcbf29ce484222325;
+    for s in parts {
+        for b in s.bytes().chain(std::iter::once(0u8)) {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x100000001b3);
+        }
+    }
+    format!("{h:016x}")
+}
+
+/// The file stem of a frame image: its id.
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+fn which(cmd: &str) -> bool {
+    std::process::Command::new(cmd)
+        .arg("-version")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok()
+}
+
+/// Frames of a video, extracted with ffmpeg into `dir` (complete when `dir/.done`
+/// exists, so an interrupted extraction is redone).
+fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
+    if !dir.join(".done").exists() {
+        if !which("ffmpeg") {
+            return Err(Error::Invalid(format!(
+                "{}: extracting frames from a video needs ffmpeg (apt-get install ffmpeg)",
+                file.display()
+            )));
+        }
+        if dir.exists() {
+            std::fs::remove_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        }
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let st = std::process::Command::new("ffmpeg")
+            .args(["-v", "error", "-nostdin", "-i"])
+            .arg(file)
+            .args(["-vf", &format!("fps={fps}"), "-q:v", "2"])
+            .arg(dir.join("frame_%05d.jpg"))
+            .status()
+            .map_err(|e| Error::io(file, e))?;
+        if !st.success() {
+            return Err(Error::format(
+                file,
+                format!("ffmpeg could not read it ({st})"),
+            ));
+        }
+        crate::fsutil::write_atomic(&dir.join(".done"), b"")?;
+    }
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+        .collect();
+    v.sort();
+    Ok(v)
+}
+
+/// Prepares the manifest's scene (see the module docs). With `dry_run` nothing is
+/// computed or written and no scene is returned, only the plan.
+pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
+    let mut plan = Plan::default();
+    // A dataset-layout poses file also lists each bracket's exposure time, used
+    // when the manifest gives none and a file carries no Exif.
+    let poses_scene = match &m.poses {
+        Some(f) => Some(Scene::load(f)?),
+        None => None,
+    };
+    let times_for = |p: &crate::scene::manifest::ProbeSource| -> Option<Vec<f64>> {
+        if p.times.is_some() {
+            return p.times.clone();
+        }
+        let known = poses_scene.as_ref()?.probes.iter().find(|q| q.id == p.id)?;
+        let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+            (Ok(x), Ok(y)) => x == y,
+            _ => a == b,
+        };
+        p.brackets
+            .iter()
+            .map(|b| {
+                known
+                    .brackets
+                    .iter()
+                    .chain(&known.brackets_wide)
+                    .find(|k| same(&k.file, b))
+                    .and_then(|k| k.exposure_time_s.map(f64::from))
+            })
+            .collect()
+    };
+    let exposures = |p: &crate::scene::manifest::ProbeSource| {
+        let exif = load_exposures(&p.brackets, p.times.as_deref());
+        match (exif, times_for(p)) {
+            (Ok(e), _) => Ok(e),
+            (Err(_), Some(t)) if p.times.is_none() => load_exposures(&p.brackets, Some(&t)),
+            (Err(e), _) => Err(e),
+        }
+    };
+    let cache = m.output.folder.join("cache");
+    // Frames.
+    let frame_files: Vec<PathBuf> = match &m.frames {
+        FrameSource::Images(v) => {
+            plan.push("frames", StageState::Given, format!("{} images", v.len()));
+            v.clone()
+        }
+        FrameSource::Video { file, fps } => {
+            let dir = cache.join(format!("frames-{}", key(&[stamp(file), fps.to_string()])));
+            let cached = dir.join(".done").exists();
+            let state = if cached {
+                StageState::Cached
+            } else {
+                StageState::Computed
+            };
+            plan.push(
+                "extract frames",
+                state,
+                format!("{} at {fps} fps (ffmpeg)", file.display()),
+            );
+            if dry_run && !cached {
+                Vec::new()
+            } else {
+                extract_video(file, *fps, &dir)?
+            }
+        }
+    };
+    // Response.
+    let bracketed: Vec<&crate::scene::manifest::ProbeSource> =
+        m.probes.iter().filter(|p| !p.brackets.is_empty()).collect();
+    // What identifies the response in the probes' cache keys (not the curve's
+    // values, which a save/load round trip may perturb in the last digit).
+    let curve_id: String;
+    let curve: Option<ResponseCurve> = match &m.response {
+        ResponseChoice::Known(r) => {
+            curve_id = format!("{r:?}");
+            plan.push("response", StageState::Given, format!("{r:?}"));
+            Some(ResponseCurve::from_response(r))
+        }
+        ResponseChoice::File(f) => {
+            curve_id = stamp(f);
+            plan.push("response", StageState::Given, f.display().to_string());
+            Some(ResponseCurve::load(f)?)
+        }
+        ResponseChoice::Recover => {
+            // The probe with the most brackets carries the most information.
+            let src = bracketed
+                .iter()
+                .max_by_key(|p| p.brackets.len())
+                .ok_or_else(|| {
+                    Error::format(
+                        &m.file,
+                        "camera.response is \"recover\" but no probe has brackets: give the response",
+                    )
+                })?;
+            let opts = RecoverOptions::default();
+            let mut parts: Vec<String> = src.brackets.iter().map(|b| stamp(b)).collect();
+            parts.push(format!(
+                "{:?} {:?} {}",
+                src.times, opts.lambda, opts.samples
+            ));
+            curve_id = key(&parts);
+            let file = cache.join(format!("response-{curve_id}.json"));
+            if file.exists() {
+                plan.push(
+                    "recover response",
+                    StageState::Cached,
+                    file.display().to_string(),
+                );
+                Some(ResponseCurve::load(&file)?)
+            } else if dry_run {
+                plan.push(
+                    "recover response",
+                    StageState::Computed,
+                    format!("from {}'s {} brackets", src.id, src.brackets.len()),
+                );
+                None
+            } else {
+                let exps = exposures(src)?;
+                let images: Vec<&crate::image::SdrImage> = exps.iter().map(|e| &e.image).collect();
+                let times: Vec<f64> = exps.iter().map(|e| e.time_s).collect();
+                let rec = recover(&images, &times, &opts)?;
+                std::fs::create_dir_all(&cache).map_err(|e| Error::io(&cache, e))?;
+                rec.curve.save(&file)?;
+                plan.push(
+                    "recover response",
+                    StageState::Computed,
+                    format!(
+                        "from {}'s {} brackets, RMS residual {:.3} ln",
+                        src.id,
+                        src.brackets.len(),
+                        rec.rms_residual.iter().fold(0.0f64, |a, v| a.max(*v))
+                    ),
+                );
+                Some(rec.curve)
+            }
+        }
+    };
+    // Probes.
+    let mut probe_files: Vec<(String, Option<PathBuf>)> = Vec::new();
+    for p in &m.probes {
+        if let Some(h) = &p.hdr {
+            plan.push(
+                format!("probe {}", p.id),
+                StageState::Given,
+                h.display().to_string(),
+            );
+            probe_files.push((p.id.clone(), Some(h.clone())));
+            continue;
+        }
+        let mut parts: Vec<String> = p.brackets.iter().map(|b| stamp(b)).collect();
+        parts.push(format!("{:?} {curve_id}", p.times));
+        let file = cache
+            .join("probes")
+            .join(format!("{}-{}.exr", p.id, key(&parts)));
+        if file.exists() {
+            plan.push(
+                format!("merge {}", p.id),
+                StageState::Cached,
+                file.display().to_string(),
+            );
+            probe_files.push((p.id.clone(), Some(file)));
+        } else if dry_run || curve.is_none() {
+            plan.push(
+                format!("merge {}", p.id),
+                StageState::Computed,
+                format!("{} brackets", p.brackets.len()),
+            );
+            probe_files.push((p.id.clone(), None));
+        } else {
+            let exps = exposures(p)?;
+            let merged = merge(
+                &exps,
+                curve.as_ref().expect("checked"),
+                &MergeOptions::default(),
+            )?;
+            io::write_hdr(&file, &merged.image)?;
+            plan.push(
+                format!("merge {}", p.id),
+                StageState::Computed,
+                format!(
+                    "{} brackets; clipped in the darkest: {:.3}% of the sphere",
+                    p.brackets.len(),
+                    100.0 * merged.report.clipped_fraction
+                ),
+            );
+            probe_files.push((p.id.clone(), Some(file)));
+        }
+    }
+    // Poses.
+    let Some(poses_file) = &m.poses else {
+        plan.push(
+            "localize",
+            StageState::Computed,
+            "no poses given: recovering them needs COLMAP localization, which this version does not run; give [poses] file",
+        );
+        if dry_run {
+            return Ok((None, plan));
+        }
+        return Err(Error::format(
+            &m.file,
+            "poses: no [poses] file given, and localization with COLMAP is not available in this version",
+        ));
+    };
+    plan.push("poses", StageState::Given, poses_file.display().to_string());
+    let known = poses_scene
+        .as_ref()
+        .expect("loaded with the manifest's poses");
+    let probe_poses: Vec<(String, Pose)> = known
+        .probes
+        .iter()
+        .map(|p| (p.id.clone(), p.pose))
+        .collect();
+    let frame_poses: Vec<(String, Pose)> = known
+        .frames
+        .iter()
+        .map(|f| (f.id.clone(), f.pose))
+        .collect();
+    let find = |list: &[(String, Pose)], id: &str| list.iter().find(|(i, _)| i == id).map(|x| x.1);
+    let mut missing = Vec::new();
+    let mut probes = Vec::new();
+    for (id, file) in &probe_files {
+        match find(&probe_poses, id) {
+            Some(pose) => probes.push(Probe {
+                id: id.clone(),
+                pose,
+                hdr: file.clone(),
+                brackets: Vec::new(),
+                brackets_wide: Vec::new(),
+            }),
+            None => missing.push(format!("probe {id}")),
+        }
+    }
+    let mut frames = Vec::new();
+    for f in &frame_files {
+        let id = stem(f);
+        match find(&frame_poses, &id) {
+            Some(pose) => frames.push(Frame {
+                id,
+                pose,
+                sdr: f.clone(),
+                ground_truth: None,
+            }),
+            None => missing.push(format!("frame {id}")),
+        }
+    }
+    if !missing.is_empty() {
+        return Err(Error::format(
+            poses_file,
+            format!("no pose for {}", missing.join(", ")),
+        ));
+    }
+    if dry_run && probes.iter().any(|p| p.hdr.is_none()) {
+        if m.gain == GainChoice::Auto {
+            plan.push("calibrate gain", StageState::Computed, "against the probes");
+        }
+        return Ok((None, plan));
+    }
+    let response = curve.as_ref().map(|c| c.to_table(1)).unwrap_or_default();
+    let mut scene = Scene {
+        root: m.root.clone(),
+        name: m.name.clone(),
+        probes,
+        frames,
+        response,
+        path_gain: 1.0,
+        warnings: Vec::new(),
+    };
+    match m.gain {
+        GainChoice::Value(g) => {
+            scene.path_gain = g;
+            plan.push("gain", StageState::Given, format!("{g}"));
+        }
+        GainChoice::Auto => {
+            // Cheap and read-only: done in a dry run too, so the frames' state
+            // (which depends on the gain) can be reported.
+            let est = calibrate_gain(&scene, &CalibrateOptions::default())?;
+            scene.path_gain = est.gain;
+            plan.push(
+                "calibrate gain",
+                StageState::Computed,
+                format!(
+                    "{:.5} from {} frames (log IQR {:.3})",
+                    est.gain, est.frames_used, est.log_iqr
+                ),
+            );
+        }
+    }
+    Ok((Some(scene), plan))
+}

@@ -1,0 +1,154 @@
+//! A manifest run end to end on a synthetic capture: probes given only as
+//! brackets, the response recovered, the gain calibrated; the second run does no
+//! work; touching one input recomputes only what depends on it.
+
+use lumiprobe::pipeline::plan::{prepare, StageState};
+use lumiprobe::pipeline::{pending_frames, run, Method, RunParams};
+use lumiprobe::scene::manifest::Manifest;
+use lumiprobe::synth::{synthesize, SynthParams};
+use std::path::Path;
+
+fn states(plan: &lumiprobe::pipeline::plan::Plan) -> Vec<(String, StageState)> {
+    plan.stages
+        .iter()
+        .map(|s| (s.name.clone(), s.state))
+        .collect()
+}
+
+fn touch(p: &Path) {
+    let f = std::fs::OpenOptions::new().append(true).open(p).unwrap();
+    let t = std::fs::metadata(p).unwrap().modified().unwrap() + std::time::Duration::from_secs(5);
+    f.set_modified(t).unwrap();
+}
+
+#[test]
+fn a_bracket_only_manifest_runs_caches_and_recomputes_only_what_changed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("capture");
+    let p = SynthParams {
+        width: 128,
+        n_frames: 3,
+        n_probes: 2,
+        seed: 5,
+        name: "m".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    // Keep only what a camera gives: remove the probes' HDR files.
+    for e in std::fs::read_dir(dir.join("probes")).unwrap() {
+        let path = e.unwrap().path();
+        if path.extension().is_some_and(|x| x == "exr") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let text = Manifest::draft(&dir).unwrap();
+    assert!(text.contains("brackets = "), "{text}");
+    let mf = dir.join("lumiprobe.toml");
+    std::fs::write(
+        &mf,
+        text.replace("method = \"fusion\"", "method = \"warp\""),
+    )
+    .unwrap();
+    let m = Manifest::load(&mf).unwrap();
+
+    let params = RunParams {
+        method: Method::Warp,
+        ..Default::default()
+    };
+    let (scene, plan) = prepare(&m, false).unwrap();
+    let scene = scene.expect("scene");
+    let st = states(&plan);
+    assert!(
+        st.contains(&("recover response".into(), StageState::Computed)),
+        "{st:?}"
+    );
+    assert_eq!(
+        st.iter()
+            .filter(|(n, s)| n.starts_with("merge") && *s == StageState::Computed)
+            .count(),
+        2
+    );
+    assert!((scene.path_gain / 1.0).is_finite() && scene.path_gain > 0.0);
+    let rep = run(&scene, &m.output.folder, &params, &|_, _| {}).unwrap();
+    assert_eq!(rep.frames.len(), 3);
+    assert!(rep.resumed.is_empty());
+
+    // Second time: everything cached, no frame to compute.
+    let (scene2, plan2) = prepare(&m, false).unwrap();
+    let scene2 = scene2.unwrap();
+    for (name, s) in states(&plan2) {
+        if name.starts_with("merge") || name == "recover response" {
+            assert_eq!(s, StageState::Cached, "{name}");
+        }
+    }
+    assert!(pending_frames(&scene2, &m.output.folder, &params)
+        .unwrap()
+        .is_empty());
+    let rep2 = run(&scene2, &m.output.folder, &params, &|_, _| {}).unwrap();
+    assert_eq!(rep2.resumed.len(), 3);
+
+    // Touch one bracket of the probe that is not the response's source: only
+    // that probe is merged again, and only frames that use it are recomputed.
+    let source = plan2
+        .stages
+        .iter()
+        .find(|s| s.name == "recover response")
+        .unwrap();
+    assert_eq!(source.state, StageState::Cached);
+    // The source is the probe with most brackets (the last on ties): touch another.
+    let other = m
+        .probes
+        .iter()
+        .find(|p| p.id != m.probes.last().unwrap().id)
+        .unwrap();
+    touch(&other.brackets[0]);
+    let (scene3, plan3) = prepare(&m, false).unwrap();
+    let scene3 = scene3.unwrap();
+    for (name, s) in states(&plan3) {
+        if name == format!("merge {}", other.id) {
+            assert_eq!(s, StageState::Computed, "{name}");
+        } else if name.starts_with("merge") || name == "recover response" {
+            assert_eq!(s, StageState::Cached, "{name}");
+        }
+    }
+    let pending = pending_frames(&scene3, &m.output.folder, &params).unwrap();
+    let users: Vec<String> = scene3
+        .frames
+        .iter()
+        .filter(|f| scene3.probes[scene3.nearest_probe(f.pose.position)].id == other.id)
+        .map(|f| f.id.clone())
+        .collect();
+    // A new gain moves every frame; with the same gain only the users change.
+    if (scene3.path_gain - scene2.path_gain).abs() < 1e-7 {
+        assert_eq!(pending, users);
+    } else {
+        assert_eq!(pending.len(), 3);
+    }
+}
+
+#[test]
+fn a_manifest_without_poses_says_localization_is_missing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("capture");
+    let p = SynthParams {
+        width: 64,
+        n_frames: 2,
+        n_probes: 2,
+        seed: 6,
+        name: "m".into(),
+        brackets: false,
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    let text = Manifest::draft(&dir)
+        .unwrap()
+        .replace("[poses]\nfile = \"poses.json\"", "");
+    let mf = dir.join("lumiprobe.toml");
+    std::fs::write(&mf, text).unwrap();
+    let m = Manifest::load(&mf).unwrap();
+    let (scene, plan) = prepare(&m, true).unwrap();
+    assert!(scene.is_none());
+    assert!(plan.stages.iter().any(|s| s.name == "localize"));
+    let e = prepare(&m, false).unwrap_err().to_string();
+    assert!(e.contains("lumiprobe.toml") && e.contains("poses"), "{e}");
+}
