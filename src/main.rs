@@ -359,6 +359,25 @@ enum Cmd {
         #[arg(long)]
         force: bool,
     },
+    /// Find every frame's and probe's pose with COLMAP (pinhole views cut from the
+    /// panoramas); with reference poses in the scene, report the errors after a
+    /// similarity alignment.
+    Localize {
+        /// Scene folder (with poses.json) or the poses.json itself.
+        scene: PathBuf,
+        /// Working folder (views, COLMAP database, model, logs).
+        #[arg(long)]
+        work: PathBuf,
+        /// Write the recovered poses here (dataset layout, COLMAP's frame of reference).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Pinhole views per panorama.
+        #[arg(long, default_value_t = 6)]
+        views: usize,
+        /// View size in pixels.
+        #[arg(long, default_value_t = 384)]
+        view_size: usize,
+    },
     /// Recover the SDR frames' exposure gain against the probes (radiance =
     /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
     Calibrate {
@@ -962,6 +981,128 @@ fn real_main(cli: Cli) -> Result<()> {
             lumiprobe::scene::manifest::Manifest::load(&path)?;
             if !cli.quiet {
                 eprintln!("wrote {}", path.display());
+            }
+        }
+        Cmd::Localize {
+            scene,
+            work,
+            out,
+            views,
+            view_size,
+        } => {
+            use lumiprobe::capture::localize::{localize, pose_errors, LocalizeOptions, Panorama};
+            let scene = Scene::load(&scene)?;
+            let opts = LocalizeOptions {
+                views,
+                view_size,
+                ..Default::default()
+            };
+            let t0 = std::time::Instant::now();
+            let mut panos = Vec::new();
+            for p in &scene.probes {
+                // The bracket nearest 0 EV, else the HDR through the frames' camera.
+                let image = match p
+                    .brackets
+                    .iter()
+                    .min_by(|a, b| a.ev.abs().total_cmp(&b.ev.abs()))
+                {
+                    Some(b) => io::read_sdr(&b.file)?,
+                    None => {
+                        let (hdr, _) = lumiprobe::pipeline::load_probe(
+                            &scene,
+                            scene.probes.iter().position(|q| q.id == p.id).unwrap_or(0),
+                            None,
+                        )?;
+                        io::linear_to_sdr(&hdr, &scene.response, scene.path_gain)
+                    }
+                };
+                panos.push(Panorama {
+                    id: p.id.clone(),
+                    is_probe: true,
+                    image,
+                });
+            }
+            for f in &scene.frames {
+                panos.push(Panorama {
+                    id: f.id.clone(),
+                    is_probe: false,
+                    image: io::read_sdr(&f.sdr)?,
+                });
+            }
+            let loc = localize(&panos, &work, &opts)?;
+            let secs = t0.elapsed().as_secs_f64();
+            let reference: Vec<(String, lumiprobe::scene::Pose)> = scene
+                .probes
+                .iter()
+                .map(|p| (p.id.clone(), p.pose))
+                .chain(scene.frames.iter().map(|f| (f.id.clone(), f.pose)))
+                .collect();
+            for l in &loc {
+                if l.source != lumiprobe::capture::localize::PoseSource::Registered {
+                    println!(
+                        "{}: {:?} ({} views registered)",
+                        l.id, l.source, l.views_registered
+                    );
+                }
+            }
+            match pose_errors(&loc, &reference) {
+                Some((e, _)) => println!(
+                    "{}: {} panoramas, {} registered, {} interpolated, {} missing; after a similarity alignment: position error median {:.3} m, max {:.3} m; rotation error median {:.2} deg, max {:.2} deg; {:.0} s",
+                    scene.name, loc.len(), e.registered, e.interpolated, e.missing,
+                    e.median_pos_m, e.max_pos_m, e.median_rot_deg, e.max_rot_deg, secs
+                ),
+                None => println!("{}: too few registered panoramas to align ({:.0} s)", scene.name, secs),
+            }
+            if let Some(path) = out {
+                let entry = |id: &str, pose: &lumiprobe::scene::Pose, extra: serde_json::Value| {
+                    let m = pose.world_from_camera;
+                    let rows: Vec<[f32; 3]> = (0..3)
+                        .map(|i| [m.x_axis[i], m.y_axis[i], m.z_axis[i]])
+                        .collect();
+                    let mut v = serde_json::json!({"id": id, "position": pose.position.to_array(), "world_from_camera": rows});
+                    if let (Some(o), Some(e)) = (v.as_object_mut(), extra.as_object()) {
+                        for (k, x) in e {
+                            o.insert(k.clone(), x.clone());
+                        }
+                    }
+                    v
+                };
+                let mut probes = Vec::new();
+                let mut frames = Vec::new();
+                for l in &loc {
+                    let Some(pose) = &l.pose else { continue };
+                    if l.is_probe {
+                        let p = scene
+                            .probes
+                            .iter()
+                            .find(|p| p.id == l.id)
+                            .expect("same ids");
+                        probes.push(entry(
+                            &l.id,
+                            pose,
+                            serde_json::json!({"hdr": p.hdr, "pose_source": l.source}),
+                        ));
+                    } else {
+                        let f = scene
+                            .frames
+                            .iter()
+                            .find(|f| f.id == l.id)
+                            .expect("same ids");
+                        frames.push(entry(
+                            &l.id,
+                            pose,
+                            serde_json::json!({"sdr": f.sdr, "pose_source": l.source}),
+                        ));
+                    }
+                }
+                let js = serde_json::json!({"scene": scene.name, "probes": probes, "frames": frames,
+                    "camera": {"response": format!("{:?}", scene.response), "path_gain": scene.path_gain}});
+                lumiprobe::fsutil::write_atomic(
+                    &path,
+                    serde_json::to_string_pretty(&js)
+                        .map_err(|e| Error::Invalid(e.to_string()))?
+                        .as_bytes(),
+                )?;
             }
         }
         Cmd::Calibrate { scene } => {

@@ -10,6 +10,7 @@
 //!   frame ([`MergeReport`]): a merge under-estimates those sources, and the user
 //!   should be told by how much of the sphere and of the light.
 //! * [`cli`] is the `lumiprobe merge` command.
+//! * [`localize`] finds every panorama's pose with COLMAP when none is given.
 //! * [`calibrate`] recovers the SDR frames' exposure gain against the probes, so
 //!   linearised frames and probes share one radiance scale.
 //! * [`fisheye`] turns a side-by-side dual-fisheye image (what two-lens cameras
@@ -21,6 +22,7 @@ pub mod cli;
 pub mod debevec;
 pub mod exif;
 pub mod fisheye;
+pub mod localize;
 pub mod merge;
 
 pub use cli::{run_merge, MergeArgs};
