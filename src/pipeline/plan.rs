@@ -9,6 +9,7 @@
 
 use crate::capture::calibrate::{calibrate_gain, CalibrateOptions};
 use crate::capture::cli::load_exposures;
+use crate::capture::localize::{localize, LocalizeOptions, Panorama, PoseSource};
 use crate::capture::{merge, recover, MergeOptions, RecoverOptions, ResponseCurve};
 use crate::error::{Error, Result};
 use crate::image::io;
@@ -140,6 +141,66 @@ fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     v.sort();
     Ok(v)
+}
+
+/// The 8-bit image of a probe that localization cuts views from: its bracket
+/// whose mean code is nearest mid-grey, else its HDR tone-mapped.
+fn probe_view_image(
+    p: &crate::scene::manifest::ProbeSource,
+    hdr: Option<&Path>,
+) -> Result<crate::image::SdrImage> {
+    let mut best: Option<(f64, crate::image::SdrImage)> = None;
+    for b in &p.brackets {
+        let img = io::read_sdr(b)?;
+        let mean =
+            img.data().iter().map(|&c| c as f64).sum::<f64>() / img.data().len().max(1) as f64;
+        let d = (mean - 110.0).abs();
+        if best.as_ref().is_none_or(|(bd, _)| d < *bd) {
+            best = Some((d, img));
+        }
+    }
+    if let Some((_, img)) = best {
+        return Ok(img);
+    }
+    let path = hdr.ok_or_else(|| Error::Invalid(format!("probe {} has no image", p.id)))?;
+    let img = io::read_hdr(path)?;
+    let disp = crate::tonemap::reinhard_global(&img, 0.18, None, None);
+    crate::image::SdrImage::from_vec(img.width(), img.height(), crate::tonemap::quantize(&disp))
+}
+
+/// Poses saved by the localization stage.
+fn read_localized(file: &Path) -> Result<(Vec<(String, Pose)>, Vec<(String, Pose)>)> {
+    let text = std::fs::read_to_string(file).map_err(|e| Error::io(file, e))?;
+    let list: Vec<serde_json::Value> =
+        serde_json::from_str(&text).map_err(|e| Error::format(file, e.to_string()))?;
+    let (mut probes, mut frames) = (Vec::new(), Vec::new());
+    for v in list {
+        let id = v["id"].as_str().unwrap_or_default().to_string();
+        let nums = |k: &str| -> Vec<f32> {
+            v[k].as_array()
+                .map(|a| {
+                    a.iter()
+                        .filter_map(|x| x.as_f64())
+                        .map(|x| x as f32)
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let (p, m) = (nums("position"), nums("world_from_camera"));
+        if p.len() != 3 || m.len() != 9 {
+            return Err(Error::format(file, format!("bad pose for {id}")));
+        }
+        let pose = Pose {
+            position: glam::Vec3::new(p[0], p[1], p[2]),
+            world_from_camera: glam::Mat3::from_cols_slice(&m),
+        };
+        if v["probe"].as_bool().unwrap_or(false) {
+            probes.push((id, pose));
+        } else {
+            frames.push((id, pose));
+        }
+    }
+    Ok((probes, frames))
 }
 
 /// Prepares the manifest's scene (see the module docs). With `dry_run` nothing is
@@ -331,34 +392,110 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         }
     }
     // Poses.
-    let Some(poses_file) = &m.poses else {
-        plan.push(
-            "localize",
-            StageState::Computed,
-            "no poses given: recovering them needs COLMAP localization, which this version does not run; give [poses] file",
-        );
-        if dry_run {
-            return Ok((None, plan));
+    let (probe_poses, frame_poses): (Vec<(String, Pose)>, Vec<(String, Pose)>) = match (
+        &m.poses,
+        &poses_scene,
+    ) {
+        (Some(poses_file), Some(known)) => {
+            plan.push("poses", StageState::Given, poses_file.display().to_string());
+            (
+                known
+                    .probes
+                    .iter()
+                    .map(|p| (p.id.clone(), p.pose))
+                    .collect(),
+                known
+                    .frames
+                    .iter()
+                    .map(|f| (f.id.clone(), f.pose))
+                    .collect(),
+            )
         }
-        return Err(Error::format(
-            &m.file,
-            "poses: no [poses] file given, and localization with COLMAP is not available in this version",
-        ));
+        _ => {
+            let mut parts: Vec<String> = frame_files.iter().map(|f| stamp(f)).collect();
+            for p in &m.probes {
+                parts.extend(p.brackets.iter().map(|b| stamp(b)));
+                parts.extend(p.hdr.iter().map(|h| stamp(h)));
+            }
+            let opts = LocalizeOptions::default();
+            parts.push(format!(
+                "{:?}",
+                (
+                    opts.views,
+                    opts.view_size,
+                    opts.fov_deg,
+                    opts.max_features,
+                    opts.frame_window,
+                    opts.probe_stride
+                )
+            ));
+            let work = cache.join(format!("localize-{}", key(&parts)));
+            let done = work.join("poses.json");
+            if done.exists() {
+                plan.push("localize", StageState::Cached, done.display().to_string());
+            } else if dry_run || frame_files.is_empty() {
+                plan.push(
+                    "localize",
+                    StageState::Computed,
+                    "COLMAP on pinhole views of every panorama",
+                );
+                return Ok((None, plan));
+            } else {
+                let mut panos = Vec::new();
+                for (p, (_, file)) in m.probes.iter().zip(&probe_files) {
+                    panos.push(Panorama {
+                        id: p.id.clone(),
+                        is_probe: true,
+                        image: probe_view_image(p, file.as_deref())?,
+                    });
+                }
+                for f in &frame_files {
+                    panos.push(Panorama {
+                        id: stem(f),
+                        is_probe: false,
+                        image: io::read_sdr(f)?,
+                    });
+                }
+                let t0 = std::time::Instant::now();
+                let loc = localize(&panos, &work, &opts)?;
+                let list: Vec<serde_json::Value> = loc
+                    .iter()
+                    .filter_map(|l| {
+                        let p = l.pose?;
+                        Some(serde_json::json!({
+                            "id": l.id, "probe": l.is_probe, "source": l.source,
+                            "position": p.position.to_array(),
+                            "world_from_camera": p.world_from_camera.to_cols_array(),
+                        }))
+                    })
+                    .collect();
+                let text =
+                    serde_json::to_vec_pretty(&list).map_err(|e| Error::Invalid(e.to_string()))?;
+                crate::fsutil::write_atomic(&done, &text)?;
+                let missing: Vec<&str> = loc
+                    .iter()
+                    .filter(|l| l.pose.is_none())
+                    .map(|l| l.id.as_str())
+                    .collect();
+                let interp = loc
+                    .iter()
+                    .filter(|l| l.source == PoseSource::Interpolated)
+                    .count();
+                plan.push(
+                        "localize",
+                        StageState::Computed,
+                        format!(
+                            "COLMAP: {} of {} panoramas registered, {interp} interpolated, missing: [{}]; {:.0} s",
+                            loc.len() - missing.len() - interp,
+                            loc.len(),
+                            missing.join(" "),
+                            t0.elapsed().as_secs_f64()
+                        ),
+                    );
+            }
+            read_localized(&done)?
+        }
     };
-    plan.push("poses", StageState::Given, poses_file.display().to_string());
-    let known = poses_scene
-        .as_ref()
-        .expect("loaded with the manifest's poses");
-    let probe_poses: Vec<(String, Pose)> = known
-        .probes
-        .iter()
-        .map(|p| (p.id.clone(), p.pose))
-        .collect();
-    let frame_poses: Vec<(String, Pose)> = known
-        .frames
-        .iter()
-        .map(|f| (f.id.clone(), f.pose))
-        .collect();
     let find = |list: &[(String, Pose)], id: &str| list.iter().find(|(i, _)| i == id).map(|x| x.1);
     let mut missing = Vec::new();
     let mut probes = Vec::new();
@@ -388,10 +525,22 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         }
     }
     if !missing.is_empty() {
-        return Err(Error::format(
-            poses_file,
-            format!("no pose for {}", missing.join(", ")),
-        ));
+        match &m.poses {
+            Some(poses_file) => {
+                return Err(Error::format(
+                    poses_file,
+                    format!("no pose for {}", missing.join(", ")),
+                ))
+            }
+            None => plan.push(
+                "left out",
+                StageState::Computed,
+                format!("not localized: {}", missing.join(", ")),
+            ),
+        }
+    }
+    if probes.is_empty() {
+        return Err(Error::format(&m.file, "no probe could be localized"));
     }
     if dry_run && probes.iter().any(|p| p.hdr.is_none()) {
         if m.gain == GainChoice::Auto {
