@@ -15,6 +15,33 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{}.{}.tmp", name, std::process::id()))
 }
 
+/// Removes temporary files (see [`temp_path`]) in `dir` left by processes that
+/// no longer run (a run killed mid-write); those of live processes, such as
+/// another shard writing into the same folder, are kept. Only where `/proc`
+/// shows processes (Linux); elsewhere nothing is removed. Returns how many went.
+pub fn remove_stale_temps(dir: &Path) -> usize {
+    if !Path::new("/proc/self").exists() {
+        return 0;
+    }
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut n = 0;
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix('.').and_then(|r| r.strip_suffix(".tmp")) else {
+            continue;
+        };
+        let Some(pid) = rest.rsplit('.').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if !Path::new(&format!("/proc/{pid}")).exists() && std::fs::remove_file(e.path()).is_ok() {
+            n += 1;
+        }
+    }
+    n
+}
+
 /// Writes `bytes` to `path` atomically (temp file, fsync, rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes))

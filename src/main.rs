@@ -187,6 +187,10 @@ enum Cmd {
         /// up to date) and stop.
         #[arg(long)]
         dry_run: bool,
+        /// Run only shard I of N (frames I, I+N, I+2N, ...), e.g. `--shard
+        /// $SLURM_ARRAY_TASK_ID/16`; shards may share the output folder.
+        #[arg(long, value_parser = parse_shard)]
+        shard: Option<(usize, usize)>,
         /// Working size WxH (default: the frames' size).
         #[arg(long, value_parser = parse_size)]
         size: Option<(usize, usize)>,
@@ -533,6 +537,18 @@ fn model_files(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(v)
 }
 
+fn parse_shard(s: &str) -> std::result::Result<(usize, usize), String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or_else(|| format!("expected I/N, got {s:?}"))?;
+    let i: usize = i.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    let n: usize = n.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if n == 0 || i >= n {
+        return Err(format!("{s:?}: need 0 <= I < N"));
+    }
+    Ok((i, n))
+}
+
 fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -606,6 +622,7 @@ fn real_main(cli: Cli) -> Result<()> {
             size,
             calibrate,
             dry_run,
+            shard,
             warp,
             flow,
         } => {
@@ -664,12 +681,22 @@ fn real_main(cli: Cli) -> Result<()> {
                 );
                 return Ok(());
             }
-            let report = pipeline::run(
-                &scene,
-                &out,
-                &params,
-                &progress_printer(cli.quiet, "frames"),
-            )?;
+            let report = match shard {
+                Some((i, n)) => pipeline::run_shard(
+                    &scene,
+                    &out,
+                    &params,
+                    i,
+                    n,
+                    &progress_printer(cli.quiet, "frames"),
+                )?,
+                None => pipeline::run(
+                    &scene,
+                    &out,
+                    &params,
+                    &progress_printer(cli.quiet, "frames"),
+                )?,
+            };
             if !cli.quiet {
                 let n = report.frames.len().max(1) as f64;
                 let mean_ms: f64 = report.frames.iter().map(|f| f.total_ms).sum::<f64>() / n;

@@ -252,8 +252,19 @@ pub fn run(
     params: &RunParams,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<RunReport> {
+    run_named(scene, out_dir, params, progress, "report.json")
+}
+
+fn run_named(
+    scene: &Scene,
+    out_dir: &Path,
+    params: &RunParams,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    report_name: &str,
+) -> Result<RunReport> {
     use rayon::prelude::*;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    crate::fsutil::remove_stale_temps(out_dir);
     crate::cv::set_num_threads(1);
     let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
     let probes: Vec<OnceLock<std::result::Result<(Arc<PreparedProbe>, usize), String>>> =
@@ -342,8 +353,43 @@ pub fn run(
         warnings: scene.warnings.clone(),
     };
     let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
-    crate::fsutil::write_atomic(&out_dir.join("report.json"), &json)?;
+    crate::fsutil::write_atomic(&out_dir.join(report_name), &json)?;
     Ok(report)
+}
+
+/// Runs shard `index` of `count` (frames whose position in the walk is `index`
+/// modulo `count`), so a long walk splits over machines (a Slurm array or a
+/// Kubernetes indexed job: one shard per task, all into the same folder). Frames
+/// are independent, so the union of the shards' outputs is byte-identical to one
+/// run; each shard writes `report.shard-<index>-of-<count>.json`.
+pub fn run_shard(
+    scene: &Scene,
+    out_dir: &Path,
+    params: &RunParams,
+    index: usize,
+    count: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<RunReport> {
+    if count == 0 || index >= count {
+        return Err(Error::Invalid(format!(
+            "shard {index}/{count}: the index must be below the count"
+        )));
+    }
+    let mut sub = scene.clone();
+    sub.frames = scene
+        .frames
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % count == index)
+        .map(|(_, f)| f.clone())
+        .collect();
+    run_named(
+        &sub,
+        out_dir,
+        params,
+        progress,
+        &format!("report.shard-{index}-of-{count}.json"),
+    )
 }
 
 /// Predicts one frame with the configured method from its SDR image `sdr`, its
