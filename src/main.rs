@@ -379,7 +379,7 @@ enum Cmd {
         #[arg(long, default_value_t = 6)]
         views: usize,
         /// View size in pixels.
-        #[arg(long, default_value_t = 384)]
+        #[arg(long, default_value_t = 256)]
         view_size: usize,
     },
     /// Recover the SDR frames' exposure gain against the probes (radiance =

@@ -50,9 +50,9 @@ impl Default for LocalizeOptions {
     fn default() -> Self {
         LocalizeOptions {
             views: 6,
-            view_size: 384,
+            view_size: 256,
             fov_deg: 90.0,
-            max_features: 1024,
+            max_features: 2048,
             frame_window: 2,
             probe_stride: 2,
             colmap: PathBuf::from("colmap"),
@@ -147,6 +147,14 @@ pub fn match_pairs(panos: &[Panorama], opts: &LocalizeOptions) -> Vec<(String, S
             }
         }
     };
+    // Neighbouring views of one panorama share a centre: no triangulation, but
+    // their common features let COLMAP register the rest of a panorama once one
+    // view is in.
+    for p in panos {
+        for k in 0..opts.views {
+            pairs.push((view_name(&p.id, k), view_name(&p.id, (k + 1) % opts.views)));
+        }
+    }
     for (i, a) in frames.iter().enumerate() {
         for b in frames.iter().skip(i + 1).take(opts.frame_window) {
             all(a, b, &mut pairs);
@@ -300,7 +308,10 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
             .arg(format!("{f},{f},{c},{c}"))
             .args(["--SiftExtraction.use_gpu", "0"])
             .arg("--SiftExtraction.max_num_features")
-            .arg(opts.max_features.to_string()),
+            .arg(opts.max_features.to_string())
+            // Domain-size pooling: descriptors that survive the blur and noise
+            // of views cut from low-resolution panoramas.
+            .args(["--SiftExtraction.domain_size_pooling", "1"]),
         "feature extraction",
         &work.join("features.log"),
     )?;
@@ -316,7 +327,8 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
             .arg("--match_list_path")
             .arg(&pairs_file)
             .args(["--match_type", "pairs"])
-            .args(["--SiftMatching.use_gpu", "0"]),
+            .args(["--SiftMatching.use_gpu", "0"])
+            .args(["--SiftMatching.guided_matching", "1"]),
         "matching",
         &work.join("matching.log"),
     )?;
@@ -336,7 +348,13 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
             .arg(&sparse)
             .args(["--Mapper.ba_refine_focal_length", "0"])
             .args(["--Mapper.ba_refine_extra_params", "0"])
-            .args(["--Mapper.multiple_models", "0"]),
+            .args(["--Mapper.multiple_models", "0"])
+            // Panoramas of a walk are close together and low in resolution: allow
+            // weaker initial pairs and registrations than COLMAP's defaults.
+            .args(["--Mapper.init_min_num_inliers", "30"])
+            .args(["--Mapper.init_min_tri_angle", "4"])
+            .args(["--Mapper.abs_pose_min_num_inliers", "15"])
+            .args(["--Mapper.min_num_matches", "10"]),
         "mapping",
         &work.join("mapper.log"),
     )?;
