@@ -42,6 +42,17 @@ pub fn remove_stale_temps(dir: &Path) -> usize {
     n
 }
 
+/// Whether an external program (ffmpeg, colmap) can be started: it runs with
+/// `-version` and its output is discarded.
+pub fn have_program(cmd: &str) -> bool {
+    std::process::Command::new(cmd)
+        .arg("-version")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok()
+}
+
 /// Writes `bytes` to `path` atomically (temp file, fsync, rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes))

@@ -375,7 +375,7 @@ pub fn recover(images: &[&SdrImage], times: &[f64], opts: &RecoverOptions) -> Re
         .into_par_iter()
         .map(|c| {
             let picks = select_samples(&sorted, &ln_t, w, h, c, opts);
-            fit_channel(&sorted, &ln_t, &picks, c, opts.lambda).map_err(|m| {
+            fit_channel(w, &sorted, &ln_t, &picks, c, opts.lambda).map_err(|m| {
                 Error::Invalid(format!(
                     "cannot recover the response of the {} channel: {m}",
                     ["red", "green", "blue"][c]
@@ -537,8 +537,69 @@ fn select_samples(
     picks
 }
 
+/// EXPERIMENT: per-frame observation weights of pixel `i`, channel `c`.
+fn obs_weights(frames: &[&[u8]], ln_t: &[f64], w: usize, i: usize, c: usize, out: &mut Vec<f64>) {
+    let env = |k: &str, d: f64| -> f64 {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let clip_rule = env("RW_CLIP", 0.0) > 0.0;
+    let floor = env("RW_FLOOR", -1.0);
+    let cc = env("RW_CC", 250.0) as u8;
+    let p = frames.len();
+    out.clear();
+    out.resize(p, 0.0);
+    let code = |j: usize| frames[j][3 * i + c];
+    let mut t_hi = f64::INFINITY;
+    let nb = env("RW_NB", 0.0) > 0.0;
+    if clip_rule {
+        if let Some(jc) = (0..p).find(|&j| code(j) >= cc) {
+            t_hi = ln_t[jc] - 1e-9;
+        }
+        if nb {
+            let n = frames[0].len() / 3;
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            let h = (n / w) as isize;
+            let bad = |j: usize| {
+                for dy in -1..=1isize {
+                    for dx in -1..=1isize {
+                        let (xx, yy) = (x + dx, y + dy);
+                        if xx < 0 || yy < 0 || xx >= w as isize || yy >= h {
+                            continue;
+                        }
+                        let k = (yy as usize * w + xx as usize) * 3;
+                        if frames[j][k..k + 3].iter().any(|&v| v >= cc) {
+                            return true;
+                        }
+                    }
+                }
+                false
+            };
+            if let Some(jc) = (0..p).find(|&j| bad(j)) {
+                t_hi = t_hi.min(ln_t[jc] - 1e-9);
+            }
+        }
+    }
+    let mut t_lo = f64::NEG_INFINITY;
+    if floor >= 0.0 {
+        if let Some(jd) = (0..p).rev().find(|&j| code(j) as f64 <= floor) {
+            t_lo = ln_t[jd] + 1e-9;
+        }
+    }
+    for j in 0..p {
+        let z = code(j);
+        if ln_t[j] >= t_hi || ln_t[j] <= t_lo || (clip_rule && z >= cc) {
+            continue;
+        }
+        out[j] = hat_weight(z);
+    }
+}
+
 /// Assembles and solves the reduced normal equations of one channel.
 fn fit_channel(
+    w: usize,
     frames: &[&[u8]],
     ln_t: &[f64],
     picks: &[usize],
@@ -553,12 +614,13 @@ fn fit_channel(
     let mut total_c = 0.0f64;
     let mut equations = 0usize;
     let mut used = 0usize;
+    let mut ow: Vec<f64> = Vec::new();
     // First pass: the data weight normaliser α = 256 / Σ w².
     for &i in picks {
         let mut cnt = 0;
         let mut s = 0.0;
-        for f in frames {
-            let wz = hat_weight(f[3 * i + c]);
+        obs_weights(frames, ln_t, w, i, c, &mut ow);
+        for &wz in &ow {
             if wz > 0.0 {
                 cnt += 1;
                 s += wz * wz;
@@ -574,9 +636,9 @@ fn fit_channel(
     let alpha = CODES as f64 / total_c;
     for &i in picks {
         obs.clear();
-        for (f, &lt) in frames.iter().zip(ln_t) {
+        obs_weights(frames, ln_t, w, i, c, &mut ow);
+        for ((f, &lt), &wz) in frames.iter().zip(ln_t).zip(&ow) {
             let z = f[3 * i + c];
-            let wz = hat_weight(z);
             if wz > 0.0 {
                 obs.push((z as usize, lt, alpha * wz * wz));
             }
@@ -635,14 +697,28 @@ fn fit_channel(
     if g.iter().any(|v| !v.is_finite()) {
         return Err("the solve produced non-finite values".into());
     }
+    if let Ok(path) = std::env::var("RW_DUMP") {
+        let mut out = String::new();
+        for &i in picks {
+            obs_weights(frames, ln_t, w, i, c, &mut ow);
+            out += &format!("{i}");
+            for (f, &wz) in frames.iter().zip(&ow) {
+                out += &format!(" {}:{:.4}", f[3 * i + c], wz);
+            }
+            out += "\n";
+        }
+        static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let k = N.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        let _ = std::fs::write(format!("{path}_{k:03}_c{c}.txt"), out);
+    }
     // Weighted RMS residual of the data equations (before the monotone pass).
     let mut sse = 0.0;
     let mut sw = 0.0;
     for &i in picks {
         obs.clear();
-        for (f, &lt) in frames.iter().zip(ln_t) {
+        obs_weights(frames, ln_t, w, i, c, &mut ow);
+        for ((f, &lt), &wz) in frames.iter().zip(ln_t).zip(&ow) {
             let z = f[3 * i + c];
-            let wz = hat_weight(z);
             if wz > 0.0 {
                 obs.push((z as usize, lt, wz * wz));
             }

@@ -203,11 +203,83 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
         share[first..end].fill(1.0 / (end - first) as f64);
         first = end;
     }
-    let mut hat = [0.0f64; CODES];
-    for (z, v) in hat.iter_mut().enumerate() {
-        *v = hat_weight(z as u8);
-    }
     let g = &curve.g;
+    // EXPERIMENT knobs.
+    let env = |k: &str, d: f64| -> f64 {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let clip_rule = env("MW_CLIP", 0.0) > 0.0;
+    let floor = env("MW_FLOOR", -1.0);
+    let wmode = env("MW_WEIGHT", 0.0) as i32;
+    let taper = env("MW_TAPER", 16.0);
+    let clip = if clip_rule { CLIP_CODE as usize } else { 256 };
+    let mut wt = [[0.0f64; CODES]; 3];
+    for c in 0..3 {
+        for z in 0..CODES {
+            let zf = z as f64;
+            wt[c][z] = match wmode {
+                0 => hat_weight(z as u8),
+                1 => {
+                    let lo = floor.max(0.0);
+                    let hi = clip.min(255) as f64;
+                    ((zf - lo).min(hi - zf)).max(0.0) / 127.5
+                }
+                _ => {
+                    let hi = clip.min(255) as f64;
+                    (g[c][z] - g[c][200]).exp() * ((hi - zf) / taper).clamp(0.0, 1.0)
+                }
+            };
+            if z as f64 <= floor || z >= clip {
+                wt[c][z] = 0.0;
+            }
+        }
+    }
+    let nb_rule = env("MW_NB", 0.0) > 0.0;
+    // First sorted frame where the 3x3 neighbourhood has a clipped sample.
+    let first_bad: Vec<usize> = {
+        let n = w * h;
+        let mut fb = vec![p; n];
+        if nb_rule {
+            for (j, f) in frames.iter().enumerate().rev() {
+                let clipped: Vec<bool> = f
+                    .chunks_exact(3)
+                    .map(|q| q.iter().any(|&v| v as usize >= clip))
+                    .collect();
+                for y in 0..h {
+                    for x in 0..w {
+                        let mut any = false;
+                        for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                            for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                                any |= clipped[yy * w + xx];
+                            }
+                        }
+                        if any {
+                            fb[y * w + x] = j;
+                        }
+                    }
+                }
+            }
+        }
+        fb
+    };
+    // Index range of the frames sharing the time of each sorted frame.
+    let mut grp = vec![(0usize, 0usize); p];
+    {
+        let mut a = 0;
+        while a < p {
+            let t0 = exps[order[a]].time_s;
+            let b = (a + 1..p)
+                .find(|&j| exps[order[j]].time_s > t0 * (1.0 + 1e-9))
+                .unwrap_or(p);
+            for j in a..b {
+                grp[j] = (a, b);
+            }
+            a = b;
+        }
+    }
     let row_area = |y: usize| {
         if equirect {
             crate::sphere::pixel_solid_angle(y, w, h) as f64
@@ -247,13 +319,40 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
                 let mut any_saturated_all = false;
                 let mut black_all = true;
                 for c in 0..3 {
+                    let code = |j: usize| frames[j][3 * i + c] as usize;
+                    // Usable frames: [lo, hi).
+                    let mut hi = p;
+                    if clip_rule {
+                        if let Some(jc) = (0..p).find(|&j| code(j) >= clip) {
+                            hi = grp[jc].0;
+                        }
+                    }
+                    let mut lo = 0;
+                    if floor >= 0.0 {
+                        if let Some(jd) = (0..p).rev().find(|&j| code(j) as f64 <= floor) {
+                            lo = grp[jd].1;
+                        }
+                    }
                     let mut num = 0.0f64;
                     let mut den = 0.0f64;
-                    for j in 0..p {
-                        let z = frames[j][3 * i + c] as usize;
-                        let wz = hat[z] * share[j];
+                    let hi1 = if first_bad[i] < p {
+                        hi.min(grp[first_bad[i]].0)
+                    } else {
+                        hi
+                    };
+                    for j in lo..hi1 {
+                        let z = code(j);
+                        let wz = wt[c][z] * share[j];
                         num += wz * (g[c][z] - ln_t[j]);
                         den += wz;
+                    }
+                    if den == 0.0 {
+                        for j in lo..hi {
+                            let z = code(j);
+                            let wz = wt[c][z] * share[j];
+                            num += wz * (g[c][z] - ln_t[j]);
+                            den += wz;
+                        }
                     }
                     let dark = frames[0][3 * i + c];
                     let bright = frames[p - 1][3 * i + c];
@@ -262,20 +361,19 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
                     }
                     let ln_e = if den > 0.0 {
                         num / den
-                    } else if dark == 255 {
+                    } else if hi == 0 || dark == 255 {
                         any_saturated_all = true;
                         g[c][255] - ln_t[0]
-                    } else if bright == 0 {
-                        g[c][0] - ln_t[p - 1]
+                    } else if lo == p || bright == 0 {
+                        g[c][bright as usize] - ln_t[p - 1]
                     } else {
-                        // Every code is 0 or 255 but the frames disagree (a jump
-                        // across the whole range between two exposures): the
-                        // radiance lies between the bounds of the two frames
-                        // around the jump; take their geometric mean.
-                        let code = |j: usize| frames[j][3 * i + c];
-                        let first_sat = (0..p).find(|&j| code(j) == 255).unwrap_or(0);
-                        let last_black = (0..p).rev().find(|&j| code(j) == 0).unwrap_or(0);
-                        0.5 * ((g[c][255] - ln_t[first_sat]) + (g[c][1] - ln_t[last_black]))
+                        let first_sat = (0..p).find(|&j| code(j) >= clip.min(255)).unwrap_or(0);
+                        let last_black = (0..p)
+                            .rev()
+                            .find(|&j| code(j) as f64 <= floor.max(0.0))
+                            .unwrap_or(0);
+                        0.5 * ((g[c][255] - ln_t[first_sat])
+                            + (g[c][floor.max(1.0) as usize] - ln_t[last_black]))
                     };
                     out[c] = ln_e.exp().min(f32::MAX as f64) as f32;
                 }

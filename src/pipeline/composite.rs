@@ -242,7 +242,7 @@ pub fn composite(
             None => report.skipped.push(frame.id.clone()),
         }
     }
-    if !report.frames.is_empty() && which("ffmpeg") {
+    if !report.frames.is_empty() && crate::fsutil::have_program("ffmpeg") {
         let list = out_dir.join("frames.txt");
         let mut text = String::new();
         for f in &report.frames {
@@ -288,15 +288,6 @@ pub fn composite(
         }
     }
     Ok(report)
-}
-
-fn which(cmd: &str) -> bool {
-    std::process::Command::new(cmd)
-        .arg("-version")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .status()
-        .is_ok()
 }
 
 #[cfg(test)]

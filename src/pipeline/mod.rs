@@ -168,14 +168,16 @@ pub fn load_probe(
     Ok((img, repaired))
 }
 
-fn file_stamp(p: &Path) -> String {
+/// Identifies a file's version for cache keys: path, size and modification time.
+pub(crate) fn file_stamp(p: &Path) -> String {
     match std::fs::metadata(p) {
         Ok(m) => format!("{}:{}:{:?}", p.display(), m.len(), m.modified().ok()),
         Err(_) => format!("{}:missing", p.display()),
     }
 }
 
-fn fingerprint(parts: &[String]) -> String {
+/// FNV-1a 64 of the parts as 16 hex digits: a key for resume checks and caches.
+pub(crate) fn fingerprint(parts: &[String]) -> String {
     // FNV-1a 64: stable across runs and platforms.
     let mut h: u64 = 0xcbf29ce484222325;
     for s in parts {

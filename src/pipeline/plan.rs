@@ -70,25 +70,6 @@ impl Plan {
     }
 }
 
-fn stamp(p: &Path) -> String {
-    match std::fs::metadata(p) {
-        Ok(m) => format!("{}:{}:{:?}", p.display(), m.len(), m.modified().ok()),
-        Err(_) => format!("{}:missing", p.display()),
-    }
-}
-
-/// FNV-1a 64 of the parts, as 16 hex digits: a cache key.
-fn key(parts: &[String]) -> String {
-    let mut h: u64 = 0xcbf29ce484222325;
-    for s in parts {
-        for b in s.bytes().chain(std::iter::once(0u8)) {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x100000001b3);
-        }
-    }
-    format!("{h:016x}")
-}
-
 /// The file stem of a frame image: its id.
 fn stem(p: &Path) -> String {
     p.file_stem()
@@ -96,20 +77,11 @@ fn stem(p: &Path) -> String {
         .unwrap_or_default()
 }
 
-fn which(cmd: &str) -> bool {
-    std::process::Command::new(cmd)
-        .arg("-version")
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .status()
-        .is_ok()
-}
-
 /// Frames of a video, extracted with ffmpeg into `dir` (complete when `dir/.done`
 /// exists, so an interrupted extraction is redone).
 fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
     if !dir.join(".done").exists() {
-        if !which("ffmpeg") {
+        if !crate::fsutil::have_program("ffmpeg") {
             return Err(Error::Invalid(format!(
                 "{}: extracting frames from a video needs ffmpeg (apt-get install ffmpeg)",
                 file.display()
@@ -250,7 +222,10 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             v.clone()
         }
         FrameSource::Video { file, fps } => {
-            let dir = cache.join(format!("frames-{}", key(&[stamp(file), fps.to_string()])));
+            let dir = cache.join(format!(
+                "frames-{}",
+                super::fingerprint(&[super::file_stamp(file), fps.to_string()])
+            ));
             let cached = dir.join(".done").exists();
             let state = if cached {
                 StageState::Cached
@@ -282,7 +257,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             Some(ResponseCurve::from_response(r))
         }
         ResponseChoice::File(f) => {
-            curve_id = stamp(f);
+            curve_id = super::file_stamp(f);
             plan.push("response", StageState::Given, f.display().to_string());
             Some(ResponseCurve::load(f)?)
         }
@@ -298,12 +273,13 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                     )
                 })?;
             let opts = RecoverOptions::default();
-            let mut parts: Vec<String> = src.brackets.iter().map(|b| stamp(b)).collect();
+            let mut parts: Vec<String> =
+                src.brackets.iter().map(|b| super::file_stamp(b)).collect();
             parts.push(format!(
                 "{:?} {:?} {}",
                 src.times, opts.lambda, opts.samples
             ));
-            curve_id = key(&parts);
+            curve_id = super::fingerprint(&parts);
             let file = cache.join(format!("response-{curve_id}.json"));
             if file.exists() {
                 plan.push(
@@ -352,11 +328,12 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             probe_files.push((p.id.clone(), Some(h.clone())));
             continue;
         }
-        let mut parts: Vec<String> = p.brackets.iter().map(|b| stamp(b)).collect();
+        let mut parts: Vec<String> = p.brackets.iter().map(|b| super::file_stamp(b)).collect();
         parts.push(format!("{:?} {curve_id}", p.times));
-        let file = cache
-            .join("probes")
-            .join(format!("{}-{}.exr", p.id, key(&parts)));
+        let file =
+            cache
+                .join("probes")
+                .join(format!("{}-{}.exr", p.id, super::fingerprint(&parts)));
         if file.exists() {
             plan.push(
                 format!("merge {}", p.id),
@@ -412,10 +389,10 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             )
         }
         _ => {
-            let mut parts: Vec<String> = frame_files.iter().map(|f| stamp(f)).collect();
+            let mut parts: Vec<String> = frame_files.iter().map(|f| super::file_stamp(f)).collect();
             for p in &m.probes {
-                parts.extend(p.brackets.iter().map(|b| stamp(b)));
-                parts.extend(p.hdr.iter().map(|h| stamp(h)));
+                parts.extend(p.brackets.iter().map(|b| super::file_stamp(b)));
+                parts.extend(p.hdr.iter().map(|h| super::file_stamp(h)));
             }
             let opts = LocalizeOptions::default();
             parts.push(format!(
@@ -429,7 +406,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                     opts.probe_stride
                 )
             ));
-            let work = cache.join(format!("localize-{}", key(&parts)));
+            let work = cache.join(format!("localize-{}", super::fingerprint(&parts)));
             let done = work.join("poses.json");
             if done.exists() {
                 plan.push("localize", StageState::Cached, done.display().to_string());
