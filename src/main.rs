@@ -381,6 +381,9 @@ enum Cmd {
         /// View size in pixels.
         #[arg(long, default_value_t = 256)]
         view_size: usize,
+        /// Field of view of each view, degrees.
+        #[arg(long, default_value_t = 90.0)]
+        fov: f32,
     },
     /// Recover the SDR frames' exposure gain against the probes (radiance =
     /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
@@ -1016,12 +1019,14 @@ fn real_main(cli: Cli) -> Result<()> {
             out,
             views,
             view_size,
+            fov,
         } => {
             use lumiprobe::capture::localize::{localize, pose_errors, LocalizeOptions, Panorama};
             let scene = Scene::load(&scene)?;
             let opts = LocalizeOptions {
                 views,
                 view_size,
+                fov_deg: fov,
                 ..Default::default()
             };
             let t0 = std::time::Instant::now();

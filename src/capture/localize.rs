@@ -352,8 +352,9 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
             // Panoramas of a walk are close together and low in resolution: allow
             // weaker initial pairs and registrations than COLMAP's defaults.
             .args(["--Mapper.init_min_num_inliers", "30"])
-            .args(["--Mapper.init_min_tri_angle", "4"])
-            .args(["--Mapper.abs_pose_min_num_inliers", "15"])
+            .args(["--Mapper.init_min_tri_angle", "2"])
+            .args(["--Mapper.abs_pose_min_num_inliers", "10"])
+            .args(["--Mapper.abs_pose_min_inlier_ratio", "0.1"])
             .args(["--Mapper.min_num_matches", "10"]),
         "mapping",
         &work.join("mapper.log"),
