@@ -376,14 +376,17 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Pinhole views per panorama.
-        #[arg(long, default_value_t = 6)]
+        #[arg(long, default_value_t = 8)]
         views: usize,
         /// View size in pixels.
         #[arg(long, default_value_t = 256)]
         view_size: usize,
         /// Field of view of each view, degrees.
-        #[arg(long, default_value_t = 90.0)]
+        #[arg(long, default_value_t = 120.0)]
         fov: f32,
+        /// Read the COLMAP model already in WORK instead of running COLMAP.
+        #[arg(long)]
+        reuse: bool,
     },
     /// Recover the SDR frames' exposure gain against the probes (radiance =
     /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
@@ -1020,6 +1023,7 @@ fn real_main(cli: Cli) -> Result<()> {
             views,
             view_size,
             fov,
+            reuse,
         } => {
             use lumiprobe::capture::localize::{localize, pose_errors, LocalizeOptions, Panorama};
             let scene = Scene::load(&scene)?;
@@ -1027,6 +1031,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 views,
                 view_size,
                 fov_deg: fov,
+                reuse_model: reuse,
                 ..Default::default()
             };
             let t0 = std::time::Instant::now();

@@ -44,18 +44,22 @@ pub struct LocalizeOptions {
     pub probe_stride: usize,
     /// The COLMAP executable.
     pub colmap: PathBuf,
+    /// Read the model already in the working folder instead of running COLMAP
+    /// (to re-derive poses with other settings).
+    pub reuse_model: bool,
 }
 
 impl Default for LocalizeOptions {
     fn default() -> Self {
         LocalizeOptions {
-            views: 6,
+            views: 8,
             view_size: 256,
-            fov_deg: 90.0,
+            fov_deg: 120.0,
             max_features: 2048,
             frame_window: 2,
             probe_stride: 2,
             colmap: PathBuf::from("colmap"),
+            reuse_model: false,
         }
     }
 }
@@ -229,6 +233,10 @@ pub fn parse_images_txt(text: &str, file: &Path) -> Result<Vec<ColmapImage>> {
     Ok(out)
 }
 
+/// Largest disagreement, in degrees, between the rotations two views of one
+/// panorama imply for it, for both to count.
+pub const CONSENSUS_DEG: f32 = 5.0;
+
 /// Panorama poses from registered views (see the module docs): `views[i]` is the
 /// index of the view and its COLMAP image.
 pub fn pano_pose(views: &[(usize, &ColmapImage)], n_views: usize) -> Option<Pose> {
@@ -237,11 +245,28 @@ pub fn pano_pose(views: &[(usize, &ColmapImage)], n_views: usize) -> Option<Pose
     }
     // COLMAP camera axes to ours: y and z flip.
     let s = Mat3::from_diagonal(Vec3::new(1.0, -1.0, -1.0));
+    let rots: Vec<Mat3> = views
+        .iter()
+        .map(|&(k, im)| im.r_cw.transpose() * s * view_rotation(k, n_views).transpose())
+        .collect();
+    // Views registered wrongly (a repeated texture, a weak match) disagree with
+    // the others; keep the largest group that agrees within CONSENSUS_DEG.
+    let angle = |a: &Mat3, b: &Mat3| {
+        let m = a.transpose() * *b;
+        ((m.x_axis.x + m.y_axis.y + m.z_axis.z - 1.0) / 2.0)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    };
+    let support = |i: usize| rots.iter().filter(|r| angle(&rots[i], r) <= CONSENSUS_DEG).count();
+    let best = (0..rots.len()).max_by_key(|&i| support(i))?;
     let mut sum = Mat3::ZERO;
     let mut centres: [Vec<f32>; 3] = Default::default();
-    for &(k, im) in views {
-        let wfc = im.r_cw.transpose() * s * view_rotation(k, n_views).transpose();
-        sum += wfc;
+    for (i, &(_, im)) in views.iter().enumerate() {
+        if angle(&rots[best], &rots[i]) > CONSENSUS_DEG {
+            continue;
+        }
+        sum += rots[i];
         let c = -(im.r_cw.transpose() * im.t_cw);
         for a in 0..3 {
             centres[a].push(c[a]);
@@ -287,6 +312,11 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
                 Ok(())
             })
             .collect::<Result<Vec<()>>>()?;
+    }
+    let existing = work.join("model").join("images.txt");
+    if opts.reuse_model && existing.exists() {
+        let text = std::fs::read_to_string(&existing).map_err(|e| Error::io(&existing, e))?;
+        return Ok(assemble(panos, &parse_images_txt(&text, &existing)?, opts.views));
     }
     let db = work.join("database.db");
     if db.exists() {
@@ -703,6 +733,15 @@ mod tests {
         let p = pano_pose(&views, 6).unwrap();
         assert!(p.position.abs_diff_eq(c, 1e-4));
         assert!(p.world_from_camera.abs_diff_eq(w, 1e-4));
+        // A view registered 90 degrees off (and elsewhere) does not move the pose.
+        let mut bad = ims[2].clone();
+        bad.r_cw = bad.r_cw * Mat3::from_rotation_z(1.5);
+        bad.t_cw = Vec3::new(9.0, 9.0, 9.0);
+        let mut views: Vec<(usize, &ColmapImage)> = ims.iter().enumerate().skip(3).collect();
+        views.push((2, &bad));
+        let p = pano_pose(&views, 6).unwrap();
+        assert!(p.world_from_camera.abs_diff_eq(w, 1e-4));
+        assert!(p.position.abs_diff_eq(c, 1e-4));
     }
 
     #[test]
