@@ -258,7 +258,11 @@ pub fn pano_pose(views: &[(usize, &ColmapImage)], n_views: usize) -> Option<Pose
             .acos()
             .to_degrees()
     };
-    let support = |i: usize| rots.iter().filter(|r| angle(&rots[i], r) <= CONSENSUS_DEG).count();
+    let support = |i: usize| {
+        rots.iter()
+            .filter(|r| angle(&rots[i], r) <= CONSENSUS_DEG)
+            .count()
+    };
     let best = (0..rots.len()).max_by_key(|&i| support(i))?;
     let mut sum = Mat3::ZERO;
     let mut centres: [Vec<f32>; 3] = Default::default();
@@ -316,7 +320,11 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
     let existing = work.join("model").join("images.txt");
     if opts.reuse_model && existing.exists() {
         let text = std::fs::read_to_string(&existing).map_err(|e| Error::io(&existing, e))?;
-        return Ok(assemble(panos, &parse_images_txt(&text, &existing)?, opts.views));
+        return Ok(assemble(
+            panos,
+            &parse_images_txt(&text, &existing)?,
+            opts.views,
+        ));
     }
     let db = work.join("database.db");
     if db.exists() {
