@@ -10,8 +10,24 @@
 //! ```
 //!
 //! over the 256 values of `g` and the `N` unknown `ln E_i`, subject to
-//! `g(128) = 0`, where `w` is the hat weight [`hat_weight`] and `g''(z)` is a
-//! second difference (below). `α = 256 / Σ w²` normalises the data term so that it
+//! `g(128) = 0`, where `g''(z)` is a second difference (below) and `w` is the hat
+//! weight restricted to the codes that are measurements ([`usable_hat`]; the
+//! smoothness rows keep the plain [`hat_weight`]).
+//!
+//! **Observations.** Not every code is a measurement; the recovery and the merge
+//! share one model of which are ([`Bracket`]). Clipped codes (≥ [`CLIP_CODE`],
+//! or ≥ [`NEAR_CLIP_CODE`] next to a clipped sample: JPEG softens a saturated
+//! 255 by up to ~25 codes near an edge and mixes the channels) and every longer
+//! exposure of the same channel (a sensor is monotone) are left out, as are codes
+//! at or below the channel's noise floor and every shorter exposure. Left in, the
+//! softened clipped codes pull `g` up by 0.5–2 near the top (where the clamp
+//! value `g(255)` of a clipped sun comes from), and black read noise bends `g`
+//! at the bottom. The floor is measured on the bracket
+//! ([`Bracket::estimate_noise_floor`]) with a first curve fitted with only code 0
+//! treated as dark; when it finds one, the curve is fitted again without the
+//! noise ([`Recovery::noise_floor`]). Codes without data — below the floor, from
+//! the near-clip band up, 255 — are extrapolated along a power law by the
+//! smoothness term. `α = 256 / Σ w²` normalises the data term so that it
 //! weighs about one per code whatever the number of samples, which makes `λ`
 //! independent of `N` (the paper's `λ` multiplies the squared term; its `gsolve`
 //! listing multiplies the rows, i.e. uses `√λ`, and does not normalise).
@@ -36,18 +52,18 @@
 //! by two steps of iterative refinement. A tiny smoothness floor
 //! ([`SMOOTHNESS_FLOOR`], unweighted) keeps the system definite for any `λ ≥ 0`,
 //! including `λ = 0`, by interpolating (or extrapolating along a power law) the
-//! codes the samples never show. Codes 0 and 255 have zero hat weight, so they
-//! are set by the smoothness rows of codes 1 and 254 alone: extrapolated from
-//! their two neighbours.
+//! codes the samples never show. Codes 0 and 255 have no data, so they are set by
+//! the smoothness rows of codes 1 and 254 alone: extrapolated from their two
+//! neighbours.
 //!
 //! **Samples.** Pixels are stratified by the sum of their codes over all exposures
 //! — a monotone function of radiance, so the strata span the scene's whole dynamic
 //! range rather than one exposure's — and drawn pseudo-randomly (spread over the
 //! image) within each stratum, preferring pixels in flat neighbourhoods (small
 //! 4-neighbour contrast in their best exposure), so a slight misregistration or
-//! JPEG ringing does not corrupt the equations. Pixels whose codes fall by more
-//! than a few levels as the exposure grows (moving content) and pixels seen
-//! unclipped in fewer than two exposures (no information) are rejected.
+//! JPEG ringing does not corrupt the equations. Pixels whose usable codes fall by
+//! more than a few levels as the exposure grows (moving content) and pixels with
+//! fewer than two usable exposures (no information) are rejected.
 //!
 //! **Monotonicity.** A response is non-decreasing; noise or scarce data can make
 //! the least-squares `g` dip. A final weighted isotonic regression (pool adjacent
@@ -86,6 +102,257 @@ pub fn hat_weight(z: u8) -> f64 {
     } else {
         (255.0 - z) / 127.5
     }
+}
+
+/// Codes at or above this are clipped: the sensor saturated, and JPEG ringing
+/// spreads a clipped 255 down by a few codes.
+pub const CLIP_CODE: u8 = 250;
+/// Codes at or above this are *possibly* clipped when some sample (any channel)
+/// of the same frame within one pixel is clipped: JPEG codes the channels jointly
+/// (YCbCr, chroma shared by 2×2 pixels) in 8×8 blocks, so next to a clipped area
+/// a saturated sample decodes as low as this, and a clipped channel distorts its
+/// neighbours' decoded values.
+pub const NEAR_CLIP_CODE: u8 = 230;
+/// An observation is noise, not a measurement, when its typical log error
+/// against a well-exposed frame of the same pixel exceeds this (a signal-to-noise
+/// ratio below about 2): the codes of such exposures are dominated by read noise,
+/// cut off at code 0, and their logarithm is biased upwards. See
+/// [`Bracket::estimate_noise_floor`].
+pub const NOISE_LOG_ERROR: f64 = 0.5;
+/// The lowest code of a reference observation in the noise-floor estimate: any
+/// usable camera records mid-grey far above its noise.
+const REFERENCE_CODE: usize = 128;
+/// Observations a predicted code needs (pooled over ±2 codes) to be judged.
+const FLOOR_MIN_SAMPLES: usize = 16;
+/// At most this many pixels are visited by the noise-floor estimate.
+const FLOOR_MAX_PIXELS: usize = 1 << 16;
+
+/// A bracket's frames sorted by exposure time, with the observation model that
+/// response recovery and the merge share:
+///
+/// * **Clipped** observations: code ≥ [`CLIP_CODE`], or ≥ [`NEAR_CLIP_CODE`] next to
+///   a clipped sample of the same frame. The sensor is monotone, so a channel
+///   clipped at one exposure is clipped at every longer one, whatever code JPEG
+///   left there: every frame from the first clipped one on is unusable.
+/// * **Dark** observations: code at or below the channel's noise floor (code 0
+///   at least). Symmetrically, every frame up to the last dark one is noise.
+///
+/// [`Bracket::usable`] gives the frames in between; the rest are bounds.
+pub struct Bracket<'a> {
+    frames: Vec<&'a [u8]>,
+    ln_t: Vec<f64>,
+    /// Per sorted frame, the range of sorted frames sharing its exposure time.
+    group: Vec<(usize, usize)>,
+    /// Per sorted frame and pixel: a sample within one pixel is ≥ [`CLIP_CODE`].
+    near_clip: Vec<Vec<bool>>,
+    /// Per channel: codes at or below this are noise.
+    floor: [u8; 3],
+}
+
+impl<'a> Bracket<'a> {
+    /// `frames` (RGB, `width` wide) with their exposure times in seconds, sorted
+    /// here by time (stable for equal times); the noise floor starts at 0.
+    pub fn new(frames: &[&'a [u8]], times: &[f64], width: usize) -> Self {
+        let mut order: Vec<usize> = (0..frames.len()).collect();
+        order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+        let sorted: Vec<&[u8]> = order.iter().map(|&j| frames[j]).collect();
+        let t: Vec<f64> = order.iter().map(|&j| times[j]).collect();
+        let p = sorted.len();
+        let mut group = vec![(0, 0); p];
+        let mut a = 0;
+        while a < p {
+            let b = (a + 1..p)
+                .find(|&j| t[j] > t[a] * (1.0 + 1e-9))
+                .unwrap_or(p);
+            group[a..b].fill((a, b));
+            a = b;
+        }
+        let near_clip = sorted.par_iter().map(|f| near_clipped(f, width)).collect();
+        Bracket {
+            frames: sorted,
+            ln_t: t.iter().map(|v| v.ln()).collect(),
+            group,
+            near_clip,
+            floor: [0; 3],
+        }
+    }
+
+    /// The frames, shortest exposure first.
+    pub fn frames(&self) -> &[&'a [u8]] {
+        &self.frames
+    }
+
+    /// `ln Δt` of the sorted frames.
+    pub fn ln_t(&self) -> &[f64] {
+        &self.ln_t
+    }
+
+    /// The range of sorted frames that share frame `j`'s exposure time.
+    pub fn group(&self, j: usize) -> (usize, usize) {
+        self.group[j]
+    }
+
+    /// Per channel, the highest code treated as noise.
+    pub fn noise_floor(&self) -> [u8; 3] {
+        self.floor
+    }
+
+    /// Sets the noise floor (codes at or below are noise; 0 = only black).
+    pub fn set_noise_floor(&mut self, floor: [u8; 3]) {
+        self.floor = floor;
+    }
+
+    /// Code of sorted frame `j` at pixel `i`, channel `c`.
+    #[inline]
+    pub fn code(&self, j: usize, i: usize, c: usize) -> u8 {
+        self.frames[j][3 * i + c]
+    }
+
+    /// Whether sample (`j`, `i`, `c`) is clipped or possibly clipped (type docs).
+    #[inline]
+    pub fn clipped(&self, j: usize, i: usize, c: usize) -> bool {
+        let z = self.code(j, i, c);
+        z >= CLIP_CODE || (z >= NEAR_CLIP_CODE && self.near_clip[j][i])
+    }
+
+    /// The usable sorted frames `lo..hi` of pixel `i`, channel `c`: after the
+    /// last dark frame (and every frame of its exposure time) and before the
+    /// first clipped one (likewise). `hi == 0`: clipped even in the darkest
+    /// exposure; `lo == len`: dark even in the brightest. `lo <= hi` always.
+    pub fn usable(&self, i: usize, c: usize) -> (usize, usize) {
+        let p = self.frames.len();
+        let hi = (0..p)
+            .find(|&j| self.clipped(j, i, c))
+            .map_or(p, |j| self.group[j].0);
+        let floor = self.floor[c];
+        let lo = (0..hi)
+            .rev()
+            .find(|&j| self.code(j, i, c) <= floor)
+            .map_or(0, |j| self.group[j].1);
+        (lo, hi)
+    }
+
+    /// Estimates each channel's noise floor with the response `g` (and stores
+    /// it): the highest code below [`REFERENCE_CODE`] whose observations are
+    /// noise by [`NOISE_LOG_ERROR`].
+    ///
+    /// For a pixel, the longest usable exposure whose code is in
+    /// `REFERENCE_CODE..NEAR_CLIP_CODE` is the reference: well above any noise,
+    /// below any clipping. It predicts the exposure of every shorter frame of the
+    /// pixel exactly (the ratio of the times), hence the code `ẑ` that frame
+    /// would show without noise. The error of the frame's observation is
+    /// `d = g(Z) − ln Δt − (g(Z_ref) − ln Δt_ref)`. Grouped by the *predicted* code
+    /// (the true exposure, not the noisy observed one, so a uniform dark wall
+    /// still shows its noise), the typical error is `1.4826 · median |d|` (the
+    /// standard deviation for Gaussian errors, robust to misregistered pixels),
+    /// pooled over `ẑ ± 2`. The floor is the highest `ẑ` where it exceeds
+    /// [`NOISE_LOG_ERROR`] on at least [`FLOOR_MIN_SAMPLES`] observations, or 0
+    /// when no code does (or the bracket never shows such exposures). It is
+    /// measured on the bracket itself, so it follows the camera, its ISO and its
+    /// JPEG settings; no noise model is assumed.
+    pub fn estimate_noise_floor(&mut self, g: &[[f64; CODES]; 3]) -> [u8; 3] {
+        self.floor = [0; 3];
+        let n = self.frames.first().map_or(0, |f| f.len() / 3);
+        let stride = n.div_ceil(FLOOR_MAX_PIXELS).max(1);
+        let this = &*self;
+        let floors: Vec<u8> = (0..3)
+            .into_par_iter()
+            .map(|c| {
+                let gc = &g[c];
+                let mut buckets: Vec<Vec<f32>> = vec![Vec::new(); REFERENCE_CODE];
+                for i in (0..n).step_by(stride) {
+                    let (lo, hi) = this.usable(i, c);
+                    let Some(k) = (lo..hi).rev().find(|&j| {
+                        let z = this.code(j, i, c) as usize;
+                        (REFERENCE_CODE..NEAR_CLIP_CODE as usize).contains(&z)
+                            && !this.near_clip[j][i]
+                    }) else {
+                        continue;
+                    };
+                    let v_ref = gc[this.code(k, i, c) as usize] - this.ln_t[k];
+                    for j in 0..this.group[k].0 {
+                        let pred = v_ref + this.ln_t[j];
+                        let zh = gc.partition_point(|&v| v < pred).min(CODES - 1);
+                        let zh = if zh > 0 && pred - gc[zh - 1] < gc[zh] - pred {
+                            zh - 1
+                        } else {
+                            zh
+                        };
+                        if zh >= REFERENCE_CODE {
+                            continue;
+                        }
+                        let d = gc[this.code(j, i, c) as usize] - pred;
+                        buckets[zh].push(d as f32);
+                    }
+                }
+                let mut floor = 0u8;
+                let mut pool: Vec<f32> = Vec::new();
+                for z in (1..REFERENCE_CODE).rev() {
+                    pool.clear();
+                    for b in &buckets[z.saturating_sub(2)..(z + 3).min(REFERENCE_CODE)] {
+                        pool.extend_from_slice(b);
+                    }
+                    if pool.len() < FLOOR_MIN_SAMPLES {
+                        continue;
+                    }
+                    for v in pool.iter_mut() {
+                        *v = v.abs();
+                    }
+                    let mid = pool.len() / 2;
+                    let med = *pool.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
+                    if 1.4826 * med > NOISE_LOG_ERROR {
+                        floor = z as u8;
+                        break;
+                    }
+                }
+                floor
+            })
+            .collect();
+        self.floor = [floors[0], floors[1], floors[2]];
+        self.floor
+    }
+}
+
+/// Per pixel of an RGB frame `w` wide: some sample within one pixel (3×3, any
+/// channel) is ≥ [`CLIP_CODE`].
+fn near_clipped(f: &[u8], w: usize) -> Vec<bool> {
+    let n = f.len() / 3;
+    if w == 0 || n == 0 {
+        return Vec::new();
+    }
+    let h = n / w;
+    let clipped: Vec<bool> = f
+        .chunks_exact(3)
+        .map(|q| q.iter().any(|&v| v >= CLIP_CODE))
+        .collect();
+    // Separable 3×3 dilation: rows, then columns.
+    let mut rows = vec![false; n];
+    for y in 0..h {
+        let r = &clipped[y * w..(y + 1) * w];
+        for x in 0..w {
+            rows[y * w + x] = r[x.saturating_sub(1)..(x + 2).min(w)].iter().any(|&b| b);
+        }
+    }
+    let mut out = vec![false; n];
+    for y in 0..h {
+        for x in 0..w {
+            out[y * w + x] = (y.saturating_sub(1)..(y + 2).min(h)).any(|yy| rows[yy * w + x]);
+        }
+    }
+    out
+}
+
+/// The hat weight restricted to the usable codes of a channel whose noise floor
+/// is `floor`: zero at and below the floor and from [`CLIP_CODE`] on, rising
+/// linearly from the floor and falling linearly to [`CLIP_CODE`], scaled like
+/// [`hat_weight`] (slope 1/127.5). With `floor = 0` it is the paper's hat with
+/// its top end moved from 255 to [`CLIP_CODE`].
+#[inline]
+pub fn usable_hat(z: u8, floor: u8) -> f64 {
+    if z <= floor || z >= CLIP_CODE {
+        return 0.0;
+    }
+    (z - floor).min(CLIP_CODE - z) as f64 / 127.5
 }
 
 /// A per-channel camera response as log exposure per code, `g[c][z] = ln f⁻¹(z)`.
@@ -303,6 +570,9 @@ pub struct Recovery {
     pub equations: [usize; 3],
     /// Weighted RMS residual of the data equations per channel (in ln units).
     pub rms_residual: [f64; 3],
+    /// Per channel, the highest code treated as noise (measured on the bracket,
+    /// [`Bracket::estimate_noise_floor`]; 0 = only black).
+    pub noise_floor: [u8; 3],
     /// Things a user should know (few samples, monotone repairs, ...).
     pub warnings: Vec<String>,
 }
@@ -369,20 +639,46 @@ pub fn recover(images: &[&SdrImage], times: &[f64], opts: &RecoverOptions) -> Re
             "response recovery needs at least one sample and a non-empty image".into(),
         ));
     }
-    let sorted: Vec<&[u8]> = order.iter().map(|&j| images[j].data()).collect();
-    let ln_t: Vec<f64> = order.iter().map(|&j| times[j].ln()).collect();
-    let per_channel: Vec<Result<ChannelFit>> = (0..3)
-        .into_par_iter()
-        .map(|c| {
-            let picks = select_samples(&sorted, &ln_t, w, h, c, opts);
-            fit_channel(w, &sorted, &ln_t, &picks, c, opts.lambda).map_err(|m| {
-                Error::Invalid(format!(
-                    "cannot recover the response of the {} channel: {m}",
-                    ["red", "green", "blue"][c]
-                ))
+    let data: Vec<&[u8]> = images.iter().map(|im| im.data()).collect();
+    let mut bracket = Bracket::new(&data, times, w);
+    // Pass 1 treats only code 0 as dark; its curve measures the noise floor
+    // (`Bracket::estimate_noise_floor`), and pass 2 leaves the noise out.
+    let fit_all = |bracket: &Bracket| -> Vec<Result<ChannelFit>> {
+        (0..3)
+            .into_par_iter()
+            .map(|c| {
+                let picks = select_samples(bracket, w, h, c, opts);
+                fit_channel(bracket, &picks, c, opts.lambda).map_err(|m| {
+                    Error::Invalid(format!(
+                        "cannot recover the response of the {} channel: {m}",
+                        ["red", "green", "blue"][c]
+                    ))
+                })
             })
-        })
-        .collect();
+            .collect()
+    };
+    let mut per_channel = fit_all(&bracket);
+    if per_channel.iter().all(|f| f.is_ok()) {
+        let mut g = [[0.0; CODES]; 3];
+        for (gc, f) in g.iter_mut().zip(&per_channel) {
+            if let Ok(f) = f {
+                *gc = f.g;
+            }
+        }
+        let mut floor = bracket.estimate_noise_floor(&g);
+        if floor != [0; 3] {
+            let second = fit_all(&bracket);
+            // A channel the floor leaves without data keeps its first fit.
+            for (c, fit) in second.into_iter().enumerate() {
+                if fit.is_ok() {
+                    per_channel[c] = fit;
+                } else {
+                    floor[c] = 0;
+                }
+            }
+            bracket.set_noise_floor(floor);
+        }
+    }
     let mut curve = ResponseCurve {
         g: [[0.0; CODES]; 3],
         lambda: opts.lambda,
@@ -394,6 +690,7 @@ pub fn recover(images: &[&SdrImage], times: &[f64], opts: &RecoverOptions) -> Re
         samples_used: [0; 3],
         equations: [0; 3],
         rms_residual: [0.0; 3],
+        noise_floor: bracket.noise_floor(),
         warnings: Vec::new(),
     };
     for (c, fit) in per_channel.into_iter().enumerate() {
@@ -445,42 +742,42 @@ fn mix(mut x: u64) -> u64 {
 /// Chooses the pixel indices sampled for channel `c` (module docs: strata by the
 /// sum of codes, flat neighbourhoods first, pseudo-random within a stratum).
 fn select_samples(
-    frames: &[&[u8]],
-    ln_t: &[f64],
+    bracket: &Bracket,
     w: usize,
     h: usize,
     c: usize,
     opts: &RecoverOptions,
 ) -> Vec<usize> {
+    let frames = bracket.frames();
+    let ln_t = bracket.ln_t();
     let p = frames.len();
     let code = |j: usize, i: usize| frames[j][3 * i + c];
     // Candidates: key (sum of codes), flatness score and hash.
     let mut cands: Vec<(u32, u8, u64, usize)> = Vec::new();
     for i in 0..w * h {
         let mut key = 0u32;
-        let mut informative = 0;
         let mut moved = false;
         let mut best = 0usize;
         let mut best_d = u8::MAX;
+        let (lo, hi) = bracket.usable(i, c);
         for j in 0..p {
             let z = code(j, i);
             key += z as u32;
-            if z > 0 && z < 255 {
-                informative += 1;
-            }
             let d = (z as i16 - 128).unsigned_abs() as u8;
             if d < best_d {
                 best_d = d;
                 best = j;
             }
-            if j > 0 && ln_t[j] > ln_t[j - 1] && z < 255 {
+            // Only usable observations can betray motion: a clipped code
+            // softened by JPEG may well read lower than the frame before.
+            if j > lo && j < hi && ln_t[j] > ln_t[j - 1] {
                 let prev = code(j - 1, i);
                 if prev > z.saturating_add(MOTION_TOLERANCE) {
                     moved = true;
                 }
             }
         }
-        if informative < 2 || moved {
+        if hi < lo + 2 || moved {
             continue;
         }
         let (x, y) = (i % w, i / w);
@@ -537,97 +834,41 @@ fn select_samples(
     picks
 }
 
-/// EXPERIMENT: per-frame observation weights of pixel `i`, channel `c`.
-fn obs_weights(frames: &[&[u8]], ln_t: &[f64], w: usize, i: usize, c: usize, out: &mut Vec<f64>) {
-    let env = |k: &str, d: f64| -> f64 {
-        std::env::var(k)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(d)
-    };
-    let clip_rule = env("RW_CLIP", 0.0) > 0.0;
-    let floor = env("RW_FLOOR", -1.0);
-    let cc = env("RW_CC", 250.0) as u8;
-    let p = frames.len();
-    out.clear();
-    out.resize(p, 0.0);
-    let code = |j: usize| frames[j][3 * i + c];
-    let mut t_hi = f64::INFINITY;
-    let nb = env("RW_NB", 0.0) > 0.0;
-    if clip_rule {
-        if let Some(jc) = (0..p).find(|&j| code(j) >= cc) {
-            t_hi = ln_t[jc] - 1e-9;
-        }
-        if nb {
-            let n = frames[0].len() / 3;
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            let h = (n / w) as isize;
-            let bad = |j: usize| {
-                for dy in -1..=1isize {
-                    for dx in -1..=1isize {
-                        let (xx, yy) = (x + dx, y + dy);
-                        if xx < 0 || yy < 0 || xx >= w as isize || yy >= h {
-                            continue;
-                        }
-                        let k = (yy as usize * w + xx as usize) * 3;
-                        if frames[j][k..k + 3].iter().any(|&v| v >= cc) {
-                            return true;
-                        }
-                    }
-                }
-                false
-            };
-            if let Some(jc) = (0..p).find(|&j| bad(j)) {
-                t_hi = t_hi.min(ln_t[jc] - 1e-9);
-            }
-        }
-    }
-    let mut t_lo = f64::NEG_INFINITY;
-    if floor >= 0.0 {
-        if let Some(jd) = (0..p).rev().find(|&j| code(j) as f64 <= floor) {
-            t_lo = ln_t[jd] + 1e-9;
-        }
-    }
-    for j in 0..p {
-        let z = code(j);
-        if ln_t[j] >= t_hi || ln_t[j] <= t_lo || (clip_rule && z >= cc) {
-            continue;
-        }
-        out[j] = hat_weight(z);
-    }
-}
-
-/// Assembles and solves the reduced normal equations of one channel.
+/// Assembles and solves the reduced normal equations of one channel. A sample's
+/// observations are its usable frames ([`Bracket::usable`]), hat-weighted.
 fn fit_channel(
-    w: usize,
-    frames: &[&[u8]],
-    ln_t: &[f64],
+    bracket: &Bracket,
     picks: &[usize],
     c: usize,
     lambda: f64,
 ) -> std::result::Result<ChannelFit, String> {
+    let ln_t = bracket.ln_t();
     let n = CODES;
     let mut m = vec![0.0f64; n * n];
     let mut b = vec![0.0f64; n];
     let mut data_w = [0.0f64; CODES];
-    let mut obs: Vec<(usize, f64, f64)> = Vec::with_capacity(frames.len());
+    let mut obs: Vec<(usize, f64, f64)> = Vec::with_capacity(ln_t.len());
     let mut total_c = 0.0f64;
     let mut equations = 0usize;
     let mut used = 0usize;
-    let mut ow: Vec<f64> = Vec::new();
-    // First pass: the data weight normaliser α = 256 / Σ w².
-    for &i in picks {
-        let mut cnt = 0;
-        let mut s = 0.0;
-        obs_weights(frames, ln_t, w, i, c, &mut ow);
-        for &wz in &ow {
+    // The usable observations of sample `i`: (code, ln Δt, hat weight).
+    let floor = bracket.noise_floor()[c];
+    let observe = |i: usize, obs: &mut Vec<(usize, f64, f64)>| {
+        obs.clear();
+        let (lo, hi) = bracket.usable(i, c);
+        for j in lo..hi {
+            let z = bracket.code(j, i, c);
+            let wz = usable_hat(z, floor);
             if wz > 0.0 {
-                cnt += 1;
-                s += wz * wz;
+                obs.push((z as usize, ln_t[j], wz));
             }
         }
-        if cnt >= 2 {
-            total_c += s;
+    };
+    // First pass: the data weight normaliser α = 256 / Σ w².
+    for &i in picks {
+        observe(i, &mut obs);
+        if obs.len() >= 2 {
+            total_c += obs.iter().map(|o| o.2 * o.2).sum::<f64>();
         }
     }
     if total_c <= 0.0 {
@@ -635,16 +876,12 @@ fn fit_channel(
     }
     let alpha = CODES as f64 / total_c;
     for &i in picks {
-        obs.clear();
-        obs_weights(frames, ln_t, w, i, c, &mut ow);
-        for ((f, &lt), &wz) in frames.iter().zip(ln_t).zip(&ow) {
-            let z = f[3 * i + c];
-            if wz > 0.0 {
-                obs.push((z as usize, lt, alpha * wz * wz));
-            }
-        }
+        observe(i, &mut obs);
         if obs.len() < 2 {
             continue;
+        }
+        for o in obs.iter_mut() {
+            o.2 = alpha * o.2 * o.2;
         }
         used += 1;
         equations += obs.len() - 1;
@@ -697,34 +934,16 @@ fn fit_channel(
     if g.iter().any(|v| !v.is_finite()) {
         return Err("the solve produced non-finite values".into());
     }
-    if let Ok(path) = std::env::var("RW_DUMP") {
-        let mut out = String::new();
-        for &i in picks {
-            obs_weights(frames, ln_t, w, i, c, &mut ow);
-            out += &format!("{i}");
-            for (f, &wz) in frames.iter().zip(&ow) {
-                out += &format!(" {}:{:.4}", f[3 * i + c], wz);
-            }
-            out += "\n";
-        }
-        static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let k = N.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-        let _ = std::fs::write(format!("{path}_{k:03}_c{c}.txt"), out);
-    }
     // Weighted RMS residual of the data equations (before the monotone pass).
     let mut sse = 0.0;
     let mut sw = 0.0;
     for &i in picks {
-        obs.clear();
-        obs_weights(frames, ln_t, w, i, c, &mut ow);
-        for ((f, &lt), &wz) in frames.iter().zip(ln_t).zip(&ow) {
-            let z = f[3 * i + c];
-            if wz > 0.0 {
-                obs.push((z as usize, lt, wz * wz));
-            }
-        }
+        observe(i, &mut obs);
         if obs.len() < 2 {
             continue;
+        }
+        for o in obs.iter_mut() {
+            o.2 *= o.2;
         }
         let cs: f64 = obs.iter().map(|o| o.2).sum();
         let mean = obs.iter().map(|o| o.2 * (g[o.0] - o.1)).sum::<f64>() / cs;

@@ -1,46 +1,80 @@
-//! Merging an exposure bracket into one HDR image (Debevec & Malik 1997, eq. 6).
+//! Merging an exposure bracket into one HDR image (Debevec & Malik 1997, eq. 6,
+//! with an explicit observation model).
 //!
-//! **Domain.** Per pixel and channel the merge is a hat-weighted mean in the *log*
+//! **Domain.** Per pixel and channel the merge is a weighted mean in the *log*
 //! domain, `ln E = Σ_j w(Z_j) (g(Z_j) − ln Δt_j) / Σ_j w(Z_j)`, with `g` the
-//! response's log exposure per code ([`ResponseCurve`]) and `w` the hat weight
-//! ([`hat_weight`]: zero at codes 0 and 255). This is the paper's estimator; it
-//! treats every unclipped observation as a measurement of the same `ln E` and
-//! trusts mid-range codes most. Frames that share an exposure time count as one
-//! exposure: each of `k` such frames weighs `w(Z)/k` (see **Inputs**).
+//! response's log exposure per code ([`ResponseCurve`]), over the frames in which
+//! the channel is actually *measured*. Frames that share an exposure time count as
+//! one exposure: each of `k` such frames weighs `w(Z)/k` (see **Inputs**).
 //!
-//! **Clipping.** A channel whose every observation has zero weight is handled
-//! explicitly: saturated in the darkest frame (code 255) it takes the darkest
-//! frame's value `g(255) − ln Δt_min` — a *lower bound* of its radiance; black in
-//! the brightest frame (code 0) it takes the brightest frame's value
-//! `g(0) − ln Δt_max` (an upper bound). Pixels with any channel at or above
-//! [`CLIP_CODE`] in the darkest frame are flagged [`SATURATED`]: their radiance
-//! is at best a lower bound. [`MergeReport`] measures how much of the sphere and
-//! of the light they are, so the under-estimate is reported instead of silent.
+//! **Which frames measure a channel** ([`Bracket`], shared with response
+//! recovery). A code can fail to be a measurement at either end:
+//!
+//! * *Clipped.* Codes at or above [`CLIP_CODE`] (250) are saturated: JPEG ringing
+//!   spreads a clipped 255 down by a few codes, and on a 2-px sun the brighter
+//!   frames read 248–254 instead of 255. Next to a clipped sample (any channel,
+//!   3×3) codes from [`NEAR_CLIP_CODE`] (230) on count as clipped too: JPEG codes
+//!   the channels together in 8×8 blocks with chroma shared by 2×2 pixels, so a
+//!   saturated sample there decodes 5–25 codes low and a clipped channel drags
+//!   its neighbours' values. Because a sensor is monotone, a channel clipped at
+//!   one exposure is clipped at every longer one, whatever code JPEG left there:
+//!   every frame from the first clipped one (and its repeats) on is dropped.
+//! * *Noise.* Codes at or below the channel's **noise floor** are read noise, not
+//!   signal: the dark frames of a wide bracket show black at codes 7–25, which the
+//!   hat weight would read as radiance thousands of times too high (biasing the
+//!   whole image by about −0.1 ln). Symmetrically, every frame up to the last dark
+//!   one is dropped. The floor is measured on the bracket itself with the given
+//!   response ([`Bracket::estimate_noise_floor`]): the highest code whose
+//!   observations scatter by more than [`NOISE_LOG_ERROR`] in ln (a
+//!   signal-to-noise ratio below about 2) around what a well-exposed frame of the
+//!   same pixel predicts. It follows the camera, its ISO and its JPEG settings;
+//!   no noise model is assumed. A single exposure has none (floor 0: only code 0
+//!   is dark). [`MergeReport::noise_floor`] reports it.
+//!
+//! **Weights.** Between the floor and the clip the weight is the code's relative
+//! exposure `exp g(z)`: in the log domain an observation's variance is
+//! `(σ_x / x)²`, which for a shot-noise-limited sensor (`σ_x² ∝ x`) is `∝ 1/x`, so
+//! `exp g` is its inverse variance. For one pixel, `x ∝ Δt`: this weights the
+//! frames by exposure time, and the longest unclipped exposure, the one with the
+//! best signal-to-noise ratio, counts most (read noise and 8-bit quantisation
+//! favour it even more). Across the near-clip band (`NEAR_CLIP_CODE..CLIP_CODE`)
+//! the weight falls linearly to zero: there a code may still be a softened clipped
+//! value, noise is cut off by saturation, and the response is least known. Debevec
+//! and Malik's hat, which trusts mid-grey most and a code of 240 as little as one
+//! of 15, is still used to *recover* the response (restricted to the same usable
+//! codes, [`super::debevec::usable_hat`]).
+//!
+//! **No measurement.** When a channel has no usable frame the merge says so
+//! explicitly instead of averaging noise: clipped even in the darkest frame, it
+//! takes that frame's lower bound, the clamp value `g(255) − ln Δt_min` for a
+//! clipped code (never less), its own value for a possibly clipped one; dark even
+//! in the brightest frame, it takes that frame's value `g(Z) − ln Δt_max` (an
+//! upper bound). Pixels with some channel clipped in the darkest frame are flagged
+//! [`SATURATED`] and pixels dark in every channel [`BLACK`]. [`MergeReport`]
+//! measures how much of the sphere and of the light the saturated pixels are, so
+//! the under-estimate is reported instead of silent.
 //!
 //! **Inputs.** Exposures may come in any order and may repeat a time; one
-//! exposure is a plain linearisation. Frames with the same exposure time are
-//! averaged into one exposure rather than each weighing as a full one: a file
-//! given twice then changes nothing, and repeated shots reduce noise without
-//! tilting the bracket towards their exposure (with the plain weights, a
-//! duplicated frame would double its say in every pixel, which moves the
-//! noise-dominated dark pixels by ten percent or more). Exposure times that are zero,
-//! negative or not finite, and images of different sizes, are errors naming the
-//! file.
+//! exposure time is a plain linearisation (repeats averaged), clipped pixels
+//! flagged. Frames with the same exposure time are averaged into one exposure
+//! rather than each weighing as a full one: a file given twice then changes
+//! nothing, and repeated shots reduce noise without tilting the bracket towards
+//! their exposure. Exposure times that are zero, negative or not finite, and
+//! images of different sizes, are errors naming the file.
 
-use super::debevec::{hat_weight, ResponseCurve, CODES};
+use super::debevec::{Bracket, ResponseCurve, CODES};
+pub use super::debevec::{CLIP_CODE, NEAR_CLIP_CODE};
 use crate::error::{Error, Result};
 use crate::image::{luminance, HdrImage, SdrImage};
 use rayon::prelude::*;
 use std::path::PathBuf;
 
-/// Codes at or above this in the darkest frame count as clipped for the report
-/// and the [`SATURATED`] flag: JPEG ringing spreads a clipped 255 by a few codes.
-pub const CLIP_CODE: u8 = 250;
-/// Flag bit: some channel is clipped (≥ [`CLIP_CODE`]) even in the darkest
-/// exposure; the pixel's radiance is a lower bound.
+/// Flag bit: some channel is clipped (≥ [`CLIP_CODE`], or ≥ [`NEAR_CLIP_CODE`]
+/// next to a clipped sample) even in the darkest exposure; the pixel's radiance
+/// is a lower bound.
 pub const SATURATED: u8 = 1;
-/// Flag bit: every channel is black (code 0) even in the brightest exposure; the
-/// pixel's radiance is an upper bound.
+/// Flag bit: every channel is black or at or below its noise floor even in the
+/// brightest exposure; the pixel's radiance is an upper bound.
 pub const BLACK: u8 = 2;
 
 /// One frame of a bracket: the image, its exposure time and the file it came from.
@@ -69,8 +103,8 @@ pub struct FrameReport {
     pub name: PathBuf,
     /// Exposure time in seconds.
     pub time_s: f64,
-    /// Share of pixels (solid-angle weighted when equirect) with a channel at or
-    /// above [`CLIP_CODE`] in this frame.
+    /// Share of pixels (solid-angle weighted when equirect) with a channel
+    /// clipped in this frame (module docs).
     pub clipped_fraction: f64,
 }
 
@@ -92,10 +126,14 @@ pub struct MergeReport {
     /// clipped pixels. Their radiance is a lower bound, so the true share is at
     /// least this.
     pub clipped_light_share: f64,
-    /// Pixels with some channel saturated (zero weight, code 255) in every frame.
+    /// Pixels with some channel clipped in every frame (the [`SATURATED`] ones).
     pub saturated_pixels: usize,
-    /// Pixels black in every channel of every frame.
+    /// Pixels black or below the noise floor in every channel of every frame
+    /// (the [`BLACK`] ones).
     pub black_pixels: usize,
+    /// Per channel, the highest code treated as noise, measured on the bracket
+    /// (0: only black; see the module docs).
+    pub noise_floor: [u8; 3],
     /// Warnings for the user (clipping, duplicates, ...).
     pub warnings: Vec<String>,
 }
@@ -117,6 +155,8 @@ impl MergeReport {
             100.0 * self.clipped_fraction,
             100.0 * self.clipped_light_share
         );
+        let [r, g, b] = self.noise_floor;
+        s += &format!("noise floor (codes read as noise): R <= {r}, G <= {g}, B <= {b}\n");
         for w in &self.warnings {
             s += &format!("warning: {w}\n");
         }
@@ -181,6 +221,23 @@ pub fn check_exposures(exps: &[Exposure]) -> Result<Vec<usize>> {
     Ok(order)
 }
 
+/// The merge weight of each code per channel (module docs, **Weights**): the
+/// code's relative exposure `exp g(z)` between the noise floor and
+/// [`CLIP_CODE`], tapered linearly to zero across the near-clip band from
+/// [`NEAR_CLIP_CODE`], zero elsewhere.
+fn weights(g: &[[f64; CODES]; 3], floor: [u8; 3]) -> [[f64; CODES]; 3] {
+    let mut wt = [[0.0f64; CODES]; 3];
+    let (near, clip) = (NEAR_CLIP_CODE as usize, CLIP_CODE as usize);
+    for c in 0..3 {
+        for z in floor[c] as usize + 1..clip {
+            let taper = ((clip - z) as f64 / (clip - near) as f64).min(1.0);
+            // Relative to the top code so that the numbers stay near 1.
+            wt[c][z] = (g[c][z] - g[c][clip - 1]).exp() * taper;
+        }
+    }
+    wt
+}
+
 /// Merges a bracket with the response `curve` (module docs). Any order, repeated
 /// times and a single exposure are accepted; invalid times and mismatched sizes
 /// are errors naming the file.
@@ -189,97 +246,26 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
     curve.validate(std::path::Path::new("response curve"))?;
     let (w, h) = (exps[0].image.width(), exps[0].image.height());
     let equirect = opts.equirect.unwrap_or(w == 2 * h);
-    let frames: Vec<&[u8]> = order.iter().map(|&j| exps[j].image.data()).collect();
-    let ln_t: Vec<f64> = order.iter().map(|&j| exps[j].time_s.ln()).collect();
-    let p = frames.len();
+    let data: Vec<&[u8]> = exps.iter().map(|e| e.image.data()).collect();
+    let times: Vec<f64> = exps.iter().map(|e| e.time_s).collect();
+    // Sorted like `order` (both sorts are stable by time).
+    let mut bracket = Bracket::new(&data, &times, w);
+    let p = exps.len();
+    let single = bracket.group(0).1 == p;
+    if !single {
+        bracket.estimate_noise_floor(&curve.g);
+    }
+    let floor = bracket.noise_floor();
+    let ln_t = bracket.ln_t();
     // Weight share of each (sorted) frame: 1/k for k frames of one exposure time.
-    let mut share = vec![1.0f64; p];
-    let mut first = 0;
-    while first < p {
-        let t0 = exps[order[first]].time_s;
-        let end = (first + 1..p)
-            .find(|&j| exps[order[j]].time_s > t0 * (1.0 + 1e-9))
-            .unwrap_or(p);
-        share[first..end].fill(1.0 / (end - first) as f64);
-        first = end;
-    }
+    let share: Vec<f64> = (0..p)
+        .map(|j| {
+            let (a, b) = bracket.group(j);
+            1.0 / (b - a) as f64
+        })
+        .collect();
     let g = &curve.g;
-    // EXPERIMENT knobs.
-    let env = |k: &str, d: f64| -> f64 {
-        std::env::var(k)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(d)
-    };
-    let clip_rule = env("MW_CLIP", 0.0) > 0.0;
-    let floor = env("MW_FLOOR", -1.0);
-    let wmode = env("MW_WEIGHT", 0.0) as i32;
-    let taper = env("MW_TAPER", 16.0);
-    let clip = if clip_rule { CLIP_CODE as usize } else { 256 };
-    let mut wt = [[0.0f64; CODES]; 3];
-    for c in 0..3 {
-        for z in 0..CODES {
-            let zf = z as f64;
-            wt[c][z] = match wmode {
-                0 => hat_weight(z as u8),
-                1 => {
-                    let lo = floor.max(0.0);
-                    let hi = clip.min(255) as f64;
-                    ((zf - lo).min(hi - zf)).max(0.0) / 127.5
-                }
-                _ => {
-                    let hi = clip.min(255) as f64;
-                    (g[c][z] - g[c][200]).exp() * ((hi - zf) / taper).clamp(0.0, 1.0)
-                }
-            };
-            if z as f64 <= floor || z >= clip {
-                wt[c][z] = 0.0;
-            }
-        }
-    }
-    let nb_rule = env("MW_NB", 0.0) > 0.0;
-    // First sorted frame where the 3x3 neighbourhood has a clipped sample.
-    let first_bad: Vec<usize> = {
-        let n = w * h;
-        let mut fb = vec![p; n];
-        if nb_rule {
-            for (j, f) in frames.iter().enumerate().rev() {
-                let clipped: Vec<bool> = f
-                    .chunks_exact(3)
-                    .map(|q| q.iter().any(|&v| v as usize >= clip))
-                    .collect();
-                for y in 0..h {
-                    for x in 0..w {
-                        let mut any = false;
-                        for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                            for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                                any |= clipped[yy * w + xx];
-                            }
-                        }
-                        if any {
-                            fb[y * w + x] = j;
-                        }
-                    }
-                }
-            }
-        }
-        fb
-    };
-    // Index range of the frames sharing the time of each sorted frame.
-    let mut grp = vec![(0usize, 0usize); p];
-    {
-        let mut a = 0;
-        while a < p {
-            let t0 = exps[order[a]].time_s;
-            let b = (a + 1..p)
-                .find(|&j| exps[order[j]].time_s > t0 * (1.0 + 1e-9))
-                .unwrap_or(p);
-            for j in a..b {
-                grp[j] = (a, b);
-            }
-            a = b;
-        }
-    }
+    let wt = weights(g, floor);
     let row_area = |y: usize| {
         if equirect {
             crate::sphere::pixel_solid_angle(y, w, h) as f64
@@ -300,6 +286,7 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
         frame_clipped: Vec<f64>,
     }
 
+    let bracket = &bracket;
     let mut image = HdrImage::new(w, h);
     let mut flags = vec![0u8; w * h];
     let stats: Vec<RowStats> = image
@@ -316,83 +303,78 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
             for x in 0..w {
                 let i = y * w + x;
                 let mut out = [0.0f32; 3];
-                let mut any_saturated_all = false;
-                let mut black_all = true;
+                let mut clipped = false;
+                let mut black = true;
                 for c in 0..3 {
-                    let code = |j: usize| frames[j][3 * i + c] as usize;
-                    // Usable frames: [lo, hi).
-                    let mut hi = p;
-                    if clip_rule {
-                        if let Some(jc) = (0..p).find(|&j| code(j) >= clip) {
-                            hi = grp[jc].0;
+                    let code = |j: usize| bracket.code(j, i, c) as usize;
+                    let ln_e = if single {
+                        // Nothing to merge: the linearisation (mean over repeats).
+                        if bracket.clipped(0, i, c) {
+                            clipped = true;
                         }
-                    }
-                    let mut lo = 0;
-                    if floor >= 0.0 {
-                        if let Some(jd) = (0..p).rev().find(|&j| code(j) as f64 <= floor) {
-                            lo = grp[jd].1;
+                        if code(p - 1) > floor[c] as usize {
+                            black = false;
                         }
-                    }
-                    let mut num = 0.0f64;
-                    let mut den = 0.0f64;
-                    let hi1 = if first_bad[i] < p {
-                        hi.min(grp[first_bad[i]].0)
+                        (0..p).map(|j| share[j] * (g[c][code(j)] - ln_t[j])).sum()
                     } else {
-                        hi
-                    };
-                    for j in lo..hi1 {
-                        let z = code(j);
-                        let wz = wt[c][z] * share[j];
-                        num += wz * (g[c][z] - ln_t[j]);
-                        den += wz;
-                    }
-                    if den == 0.0 {
+                        let (lo, hi) = bracket.usable(i, c);
+                        if lo < p {
+                            black = false;
+                        }
+                        let mut num = 0.0f64;
+                        let mut den = 0.0f64;
                         for j in lo..hi {
                             let z = code(j);
                             let wz = wt[c][z] * share[j];
                             num += wz * (g[c][z] - ln_t[j]);
                             den += wz;
                         }
-                    }
-                    let dark = frames[0][3 * i + c];
-                    let bright = frames[p - 1][3 * i + c];
-                    if bright != 0 {
-                        black_all = false;
-                    }
-                    let ln_e = if den > 0.0 {
-                        num / den
-                    } else if hi == 0 || dark == 255 {
-                        any_saturated_all = true;
-                        g[c][255] - ln_t[0]
-                    } else if lo == p || bright == 0 {
-                        g[c][bright as usize] - ln_t[p - 1]
-                    } else {
-                        let first_sat = (0..p).find(|&j| code(j) >= clip.min(255)).unwrap_or(0);
-                        let last_black = (0..p)
-                            .rev()
-                            .find(|&j| code(j) as f64 <= floor.max(0.0))
-                            .unwrap_or(0);
-                        0.5 * ((g[c][255] - ln_t[first_sat])
-                            + (g[c][floor.max(1.0) as usize] - ln_t[last_black]))
+                        // A clipped observation's lower bound: the clamp value
+                        // g(255) for a clipped code, its own value for a possibly
+                        // clipped one.
+                        let bound = |j: usize| {
+                            let z = code(j);
+                            let zb = if z >= CLIP_CODE as usize { 255 } else { z };
+                            g[c][zb] - ln_t[j]
+                        };
+                        if den > 0.0 {
+                            num / den
+                        } else if hi == 0 {
+                            // Clipped even in the darkest exposure: its bound.
+                            clipped = true;
+                            let (a, b) = bracket.group(0);
+                            (a..b).map(bound).fold(f64::NEG_INFINITY, f64::max)
+                        } else if lo == p {
+                            // Noise even in the brightest exposure: its value.
+                            let (a, b) = bracket.group(p - 1);
+                            (a..b).map(|j| share[j] * (g[c][code(j)] - ln_t[j])).sum()
+                        } else if lo == hi {
+                            // Dark in one exposure and clipped in the next (a jump
+                            // across the whole range): between the two bounds.
+                            let upper = g[c][floor[c] as usize + 1] - ln_t[lo - 1];
+                            0.5 * (upper + bound(hi))
+                        } else {
+                            // Usable frames whose weights all underflowed (a curve
+                            // spanning hundreds of ln units): their plain mean.
+                            let n = (hi - lo) as f64;
+                            (lo..hi).map(|j| g[c][code(j)] - ln_t[j]).sum::<f64>() / n
+                        }
                     };
                     out[c] = ln_e.exp().min(f32::MAX as f64) as f32;
                 }
-                let clipped = (0..3).any(|c| frames[0][3 * i + c] >= CLIP_CODE);
-                for (j, f) in frames.iter().enumerate() {
-                    if (0..3).any(|c| f[3 * i + c] >= CLIP_CODE) {
+                for j in 0..p {
+                    if (0..3).any(|c| bracket.clipped(j, i, c)) {
                         st.frame_clipped[j] += da;
                     }
                 }
                 let mut flag = 0u8;
                 if clipped {
                     flag |= SATURATED;
+                    st.saturated += 1;
                 }
-                if black_all {
+                if black {
                     flag |= BLACK;
                     st.black += 1;
-                }
-                if any_saturated_all {
-                    st.saturated += 1;
                 }
                 frow[x] = flag;
                 row[3 * x..3 * x + 3].copy_from_slice(&out);
@@ -462,9 +444,9 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
     }
     if tot.black > 0 {
         warnings.push(format!(
-            "{} pixel(s) are black even in the brightest exposure; their radiance is an \
-             upper bound",
-            tot.black
+            "{} pixel(s) are black (at or below the noise floor, codes {:?}) even in the \
+             brightest exposure; their radiance is an upper bound",
+            tot.black, floor
         ));
     }
     for pair in order.windows(2) {
@@ -497,6 +479,7 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
             clipped_light_share,
             saturated_pixels: tot.saturated,
             black_pixels: tot.black,
+            noise_floor: floor,
             warnings,
         },
     })
