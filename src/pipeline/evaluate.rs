@@ -3,7 +3,7 @@
 //! orientation (right light, wrong structure) and the linearised SDR frame (right
 //! structure, light sources clipped).
 
-use super::{linearize, load_frame, load_probe, prediction_path};
+use super::{existing_prediction, linearize, load_frame, load_probe, prediction_path};
 use crate::error::{Error, Result};
 use crate::eval::{compare_resized, Metrics, MetricsTable};
 use crate::image::{io, HdrImage};
@@ -131,14 +131,7 @@ fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) ->
             let gt = io::read_hdr(gt_path)?;
             let mut scores = Vec::new();
             for ((label, dir), &f) in preds.iter().zip(factors) {
-                let p = prediction_path(dir, frame);
-                if !p.exists() {
-                    return Err(Error::Invalid(format!(
-                        "{}: prediction for frame {} is missing (run `lumiprobe run` first)",
-                        p.display(),
-                        frame.id
-                    )));
-                }
+                let p = existing_prediction(dir, frame)?;
                 let mut pred = io::read_hdr(&p)?;
                 if f != 1.0 {
                     pred.data_mut().iter_mut().for_each(|v| *v *= f as f32);

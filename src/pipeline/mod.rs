@@ -505,3 +505,16 @@ pub fn predict_frame(
 pub fn prediction_path(out_dir: &Path, frame: &Frame) -> PathBuf {
     out_dir.join(format!("{}.exr", frame.id))
 }
+
+/// [`prediction_path`], or an error naming it when the run has not produced it.
+pub fn existing_prediction(out_dir: &Path, frame: &Frame) -> Result<PathBuf> {
+    let p = prediction_path(out_dir, frame);
+    if !p.exists() {
+        return Err(Error::Invalid(format!(
+            "{}: prediction for frame {} is missing (run `lumiprobe run` first)",
+            p.display(),
+            frame.id
+        )));
+    }
+    Ok(p)
+}

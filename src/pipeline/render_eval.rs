@@ -13,7 +13,7 @@
 //! at 100 dB), SSIM is [`crate::eval::ssim`] of the luma.
 
 use super::evaluate::{nearest_probe_baseline, BASELINE_PROBE, BASELINE_SDR};
-use super::{linearize, load_frame, prediction_path};
+use super::{existing_prediction, linearize, load_frame};
 use crate::error::{Error, Result};
 use crate::ibl::export::{PrefilterOptions, Prefiltered};
 use crate::image::{io, luminance, HdrImage};
@@ -223,14 +223,7 @@ pub fn render_eval(
         let (w, h) = (gt.width(), gt.height());
         let mut sources: Vec<(String, HdrImage)> = Vec::new();
         for (label, dir) in preds {
-            let p = prediction_path(dir, frame);
-            if !p.exists() {
-                return Err(Error::Invalid(format!(
-                    "{}: prediction for frame {} is missing (run `lumiprobe run` first)",
-                    p.display(),
-                    frame.id
-                )));
-            }
+            let p = existing_prediction(dir, frame)?;
             sources.push((label.clone(), io::read_hdr(&p)?));
         }
         sources.push((

@@ -244,14 +244,7 @@ impl Manifest {
         let bad = |msg: String| Error::format(file, msg);
         let raw: RawManifest =
             toml::from_str(text).map_err(|e| bad(format!("not a valid manifest: {e}")))?;
-        let resolve = |s: &str| -> PathBuf {
-            let p = Path::new(s);
-            if p.is_absolute() {
-                p.to_path_buf()
-            } else {
-                root.join(p)
-            }
-        };
+        let resolve = |s: &str| super::resolve_path(root, s);
         let must_exist = |key: &str, p: &Path| -> Result<()> {
             if p.exists() {
                 Ok(())

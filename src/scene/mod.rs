@@ -11,6 +11,16 @@ use glam::{Mat3, Vec3};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+/// A path from a scene or manifest file: absolute as given, relative to `root`.
+pub(crate) fn resolve_path(root: &Path, s: &str) -> PathBuf {
+    let p = Path::new(s);
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        root.join(p)
+    }
+}
+
 /// Where a panorama was taken and how it was turned.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
@@ -187,14 +197,7 @@ impl Scene {
                 world_from_camera: fixed,
             })
         };
-        let resolve = |s: &str| -> PathBuf {
-            let p = Path::new(s);
-            if p.is_absolute() {
-                p.to_path_buf()
-            } else {
-                root.join(p)
-            }
-        };
+        let resolve = |s: &str| resolve_path(root, s);
         let mut probes = Vec::new();
         for e in &raw.probes {
             let pose = pose_of("probe", e)?;
