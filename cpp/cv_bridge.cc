@@ -8,6 +8,8 @@
 #include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <algorithm>
+#include <cmath>
 
 #include <stdexcept>
 #include <string>
@@ -233,6 +235,25 @@ rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
         p.variational_refinement_iterations);
   dis->setUseMeanNormalization(p.use_mean_normalization);
   dis->setUseSpatialPropagation(p.use_spatial_propagation);
+  // DIS's coarsest pyramid level for this size (its own formula). When the
+  // preset's finest level is coarser than that, OpenCV 4.6 re-picks the levels
+  // from the width alone and then reads past pyramid levels shorter than a patch
+  // (SIGSEGV on e.g. 80x16 images): lower the finest level to what the size
+  // allows instead, and refuse images too small for any level.
+  const int psz = dis->getPatchSize();
+  const int coarsest =
+      std::min(height, width) < psz
+          ? -1
+          : std::min(int(std::log(std::max(width, height) / (4.0 * psz)) / std::log(2.0) + 0.5),
+                     int(std::log(double(std::min(width, height) / psz)) / std::log(2.0)));
+  if (coarsest < 0)
+    throw std::invalid_argument(
+        "image of " + std::to_string(width) + "x" + std::to_string(height) +
+        " is too small for optical flow (DIS needs at least " + std::to_string(psz) +
+        " pixels in each dimension and " +
+        std::to_string(int(std::ceil(psz * std::sqrt(2.0)))) + " in one)");
+  if (coarsest < dis->getFinestScale())
+    dis->setFinestScale(coarsest);
   cv::Mat flow;
   dis->calc(ma, mb, flow);
   if (flow.type() != CV_32FC2 || flow.rows != height || flow.cols != width)

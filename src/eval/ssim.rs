@@ -133,9 +133,13 @@ pub fn ssim(a: &[f32], b: &[f32], w: usize, h: usize) -> f64 {
                 for x in 0..w {
                     let ma = acc[x] as f64;
                     let mb = acc[w + x] as f64;
-                    let saa = acc[2 * w + x] as f64 - ma * ma;
-                    let sbb = acc[3 * w + x] as f64 - mb * mb;
-                    let sab = acc[4 * w + x] as f64 - ma * mb;
+                    // E[x^2] - mu^2 in f32 sums can round below zero or break
+                    // Cauchy-Schwarz (SSIM above 1 on flat windows): keep the
+                    // statistics consistent.
+                    let saa = (acc[2 * w + x] as f64 - ma * ma).max(0.0);
+                    let sbb = (acc[3 * w + x] as f64 - mb * mb).max(0.0);
+                    let lim = (saa * sbb).sqrt();
+                    let sab = (acc[4 * w + x] as f64 - ma * mb).clamp(-lim, lim);
                     let num = (2.0 * ma * mb + c1) * (2.0 * sab + c2);
                     let den = (ma * ma + mb * mb + c1) * (saa + sbb + c2);
                     sum += num / den;

@@ -143,7 +143,10 @@ pub fn pano_flow(a: &[u8], b: &[u8], w: usize, h: usize, p: &FlowParams) -> Resu
         out
     };
     let (pa, pb) = (padded(a), padded(b));
-    let f = cv::dis_flow(&pa, &pb, pw, h, &p.dis())?;
+    let f = cv::dis_flow(&pa, &pb, pw, h, &p.dis()).map_err(|e| match e {
+        Error::OpenCv(m) => Error::OpenCv(format!("flow on a {w}x{h} panorama: {m}")),
+        e => e,
+    })?;
     let mut data = Vec::with_capacity(w * h * 2);
     for y in 0..h {
         let row = &f[2 * (y * pw + pad)..2 * (y * pw + pad + w)];

@@ -170,7 +170,8 @@ fn box_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
 
 /// Fuses `sources` (one or two, in the frame's orientation) onto the SDR frame.
 /// `sdr_linear` is the frame's radiance (used by the SDR label); `response` and
-/// `gain` describe the frame camera.
+/// `gain` describe the frame camera. Sources with NaN, infinite or negative
+/// samples are an [`Error::Invalid`] naming the source.
 pub fn flow_frame(
     sdr: &SdrImage,
     sdr_linear: &HdrImage,
@@ -193,6 +194,16 @@ pub fn flow_frame(
                 s.image.width(),
                 s.image.height()
             )));
+        }
+        let bad = s.image.count_invalid();
+        if bad > 0 {
+            let m = format!(
+                "source {} has {bad} NaN, infinite or negative samples",
+                s.name
+            );
+            return Err(Error::Invalid(
+                m + "; repair them first (HdrImage::repair_invalid)",
+            ));
         }
     }
     if sdr_linear.width() != w || sdr_linear.height() != h {
@@ -240,7 +251,9 @@ pub fn flow_frame(
         warped.push(wi);
         confs.push(confidence(fwd, bwd, &frame_gray, &p.flow));
     }
-    let dist_sum: f32 = sources.iter().map(|s| s.distance_m.max(0.0)).sum();
+    // In f64 and capped: infinite or huge distances must not make the prior NaN.
+    let dist = |s: &Source| (s.distance_m.max(0.0) as f64).min(f32::MAX as f64);
+    let dist_sum: f64 = sources.iter().map(dist).sum();
     // Colour term per source: mean absolute display difference to the frame,
     // optionally averaged over a box window (wrapping across the seam).
     let dcs: Vec<Vec<f32>> = warped_disp
@@ -287,8 +300,15 @@ pub fn flow_frame(
     let seam_feature = |v: f32| (1.0 + (gain * v).max(0.0)).ln();
     let mut data = vec![0.0f32; w * h * n_lab];
     // Per label: three seam channels, then a one-hot label code scaled by the
-    // Potts weight (non-zero only where the frame clipped).
-    let ch = 3 + n_lab;
+    // Potts weight (non-zero only where the frame clipped). Channels that would be
+    // zero everywhere are left out.
+    let seam_ch = if p.seam_clipped != 0.0 || p.seam_measured != 0.0 {
+        3
+    } else {
+        0
+    };
+    let potts_ch = if p.clipped_potts != 0.0 { n_lab } else { 0 };
+    let ch = seam_ch + potts_ch;
     let potts_feature = p.clipped_potts / std::f32::consts::SQRT_2;
     let mut features = vec![0.0f32; w * h * n_lab * ch];
     for px in 0..w * h {
@@ -300,7 +320,7 @@ pub fn flow_frame(
             };
             let df = 1.0 - confs[i][px];
             let dd = if dist_sum > 0.0 {
-                sources[i].distance_m.max(0.0) / dist_sum
+                (dist(&sources[i]) / dist_sum) as f32
             } else {
                 0.0
             };
@@ -308,21 +328,21 @@ pub fn flow_frame(
             let hdr = &warped[i].data()[3 * px..3 * px + 3];
             let feasible = cost.is_finite() && hdr.iter().all(|v| v.is_finite());
             data[px * n_lab + i] = if feasible { cost } else { INFEASIBLE };
-            for k in 0..3 {
+            for k in 0..seam_ch {
                 features[(px * n_lab + i) * ch + k] = seam_w[px] * seam_feature(hdr[k]);
             }
-            if clipped_px[px] {
-                features[(px * n_lab + i) * ch + 3 + i] = potts_feature;
+            if potts_ch > 0 && clipped_px[px] {
+                features[(px * n_lab + i) * ch + seam_ch + i] = potts_feature;
             }
         }
         let clipped = p.sdr_calibrated && clipped_px[px];
         data[px * n_lab + n_src] = if clipped { INFEASIBLE } else { p.sdr_cost };
         let lin = &sdr_linear.data()[3 * px..3 * px + 3];
-        for k in 0..3 {
+        for k in 0..seam_ch {
             features[(px * n_lab + n_src) * ch + k] = seam_w[px] * seam_feature(lin[k]);
         }
-        if clipped_px[px] {
-            features[(px * n_lab + n_src) * ch + 3 + n_src] = potts_feature;
+        if potts_ch > 0 && clipped_px[px] {
+            features[(px * n_lab + n_src) * ch + seam_ch + n_src] = potts_feature;
         }
     }
     timings.warp_ms = ms(t);

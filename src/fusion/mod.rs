@@ -217,7 +217,8 @@ pub fn fuse(
 /// Like [`fuse`], with lights placed in 3-D ([`lights`]) given as `(direction in the
 /// frame's camera axes, power above the white point at the frame)`: a clipped region
 /// that contains (or is nearest, within `max_angle_deg`, to) such lights receives their
-/// power instead of the estimate's.
+/// power instead of the estimate's. NaN, infinite or negative samples in
+/// `sdr_linear` or `estimate` are an [`Error::Invalid`] naming the image.
 pub fn fuse_with_lights(
     sdr: &SdrImage,
     sdr_linear: &HdrImage,
@@ -234,6 +235,13 @@ pub fn fuse_with_lights(
                 img.width(),
                 img.height()
             )));
+        }
+        let bad = img.count_invalid();
+        if bad > 0 {
+            let m = format!("{name} has {bad} NaN, infinite or negative samples");
+            return Err(Error::Invalid(
+                m + "; repair them first (HdrImage::repair_invalid)",
+            ));
         }
     }
     let white = if white.is_finite() && white > 0.0 {

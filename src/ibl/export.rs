@@ -174,16 +174,15 @@ pub struct Prefiltered {
 impl Prefiltered {
     /// Prefilters an equirect, linear-radiance environment in memory (what the
     /// renderer uses): SH projection (then `opts.sh_window`), irradiance cube,
-    /// specular cube and BRDF table. Fails with [`Error::Invalid`] for an empty
-    /// image, zero sizes in `opts` or any NaN, infinite or negative sample (repair
+    /// specular cube and BRDF table. Fails with [`Error::Invalid`] for an image
+    /// smaller than [`MIN_PROBE_SIZE`], zero sizes in `opts` or any NaN, infinite
+    /// or negative sample (repair
     /// those first with [`HdrImage::repair_invalid`] if that is acceptable). The
     /// BRDF table is computed once per process per size and sample count.
     pub fn from_env(env: &HdrImage, opts: &PrefilterOptions) -> Result<Self> {
         opts.validate()?;
-        if env.width() == 0 || env.height() == 0 {
-            return Err(Error::Invalid(
-                "cannot prefilter an empty environment".to_string(),
-            ));
+        if let Some(why) = too_small(env) {
+            return Err(Error::Invalid(format!("environment {why}")));
         }
         let bad = env.count_invalid();
         if bad > 0 {
@@ -213,6 +212,23 @@ impl Prefiltered {
     pub fn brdf(&self, n_dot_v: f32, roughness: f32) -> [f32; 2] {
         brdf_lookup(&self.lut, n_dot_v, roughness)
     }
+}
+
+/// Smallest probe (width, height) that [`Prefiltered::from_env`] and
+/// [`prefilter_to_dir`] accept: with fewer pixels the SH projection (one sample
+/// per pixel) misses even a constant environment's irradiance by more than 5%
+/// (by 60% for a 2x1 probe).
+pub const MIN_PROBE_SIZE: (usize, usize) = (8, 4);
+
+/// Why `env` is too small to prefilter, if it is.
+fn too_small(env: &HdrImage) -> Option<String> {
+    let (w, h) = (env.width(), env.height());
+    (w < MIN_PROBE_SIZE.0 || h < MIN_PROBE_SIZE.1).then(|| {
+        format!(
+            "of {w}x{h} pixels is too small to prefilter (at least {}x{})",
+            MIN_PROBE_SIZE.0, MIN_PROBE_SIZE.1
+        )
+    })
 }
 
 /// [`brdf_lut`], computed once per process for each `(size, samples)`: the table
@@ -516,7 +532,8 @@ fn write_cube(dir: &Path, names: &[String], faces: &[HdrImage; 6]) -> Result<Vec
 /// A probe with any NaN, infinite or negative sample is **rejected** with an
 /// [`Error::Format`] naming the file and the count, rather than silently repaired:
 /// such values mean an upstream bug, and any repair would change the lighting.
-/// Zero sizes in `opts` are [`Error::Invalid`].
+/// So is a probe smaller than [`MIN_PROBE_SIZE`]. Zero sizes in `opts` are
+/// [`Error::Invalid`].
 pub fn prefilter_to_dir(
     probe: &Path,
     out_dir: &Path,
@@ -525,6 +542,9 @@ pub fn prefilter_to_dir(
     let start = std::time::Instant::now();
     opts.validate()?;
     let env = crate::image::io::read_hdr(probe)?;
+    if let Some(why) = too_small(&env) {
+        return Err(Error::format(probe, format!("probe {why}")));
+    }
     let bad = env.count_invalid();
     if bad > 0 {
         return Err(Error::format(

@@ -145,7 +145,10 @@ fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) ->
             let pi = scene.nearest_probe(frame.pose.position);
             Ok(Some(FrameScores {
                 id: frame.id.clone(),
-                probe_distance_m: scene.probes[pi].pose.position.distance(frame.pose.position),
+                probe_distance_m: crate::scene::distance_m(
+                    scene.probes[pi].pose.position,
+                    frame.pose.position,
+                ),
                 scores,
             }))
         })

@@ -15,7 +15,7 @@ use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
 use crate::fusion::lights::{find_lights, triangulate};
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
-use crate::scene::{Frame, Scene};
+use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -98,7 +98,8 @@ pub struct FrameRecord {
     pub fusion: Option<FusionReport>,
     /// Time for the whole frame, loading excluded, in milliseconds.
     pub total_ms: f64,
-    /// Input pixels that were NaN, infinite or negative and were repaired.
+    /// Samples of the probes used that were NaN, infinite or negative and were
+    /// repaired on loading (see [`load_probe`]).
     pub repaired_pixels: usize,
     /// Fingerprint of inputs and settings, used to resume.
     pub fingerprint: String,
@@ -309,7 +310,10 @@ fn run_named(
                 return Ok((rec, true));
             }
             let sdr = load_frame(frame, params.size)?;
-            let (_, repaired) = get_probe(pi)?;
+            let mut repaired = 0;
+            for &u in &used {
+                repaired += get_probe(u)?.1;
+            }
             let t = Instant::now();
             let lin = linearize(&sdr, scene);
             let (img, warp_report, flow_report, fusion_report) =
@@ -319,7 +323,7 @@ fn run_named(
             let rec = FrameRecord {
                 id: frame.id.clone(),
                 probe: probe_meta.id.clone(),
-                probe_distance_m: probe_meta.pose.position.distance(frame.pose.position),
+                probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
                 probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
                 warp: warp_report,
                 flow: flow_report,
@@ -449,7 +453,15 @@ pub fn predict_frame(
                 b.pose.position,
                 params.fusion.max_gap_m,
             ) {
-                let (d, pw) = l.seen_from(frame.pose.position);
+                let (d, mut pw) = l.seen_from(frame.pose.position);
+                // A frame taken at a probe (within 1 mm) sees the light exactly as
+                // that probe did: no extrapolation from the other one.
+                let at = |q: glam::Vec3| distance_m(q, frame.pose.position) < 1e-3;
+                if at(a.pose.position) {
+                    pw = l.seen[0].0;
+                } else if at(b.pose.position) {
+                    pw = l.seen[1].0;
+                }
                 placed.push((to_frame * d, pw));
             }
         }
@@ -485,7 +497,7 @@ pub fn predict_frame(
                 .map(|(&u, img)| Source {
                     name: scene.probes[u].id.clone(),
                     image: img,
-                    distance_m: scene.probes[u].pose.position.distance(frame.pose.position),
+                    distance_m: distance_m(scene.probes[u].pose.position, frame.pose.position),
                 })
                 .collect();
             let (img, r) = flow_frame(

@@ -115,7 +115,7 @@ impl ProbeSet {
             .entries
             .iter()
             .enumerate()
-            .map(|(i, e)| (i, e.pose.position.distance(p)))
+            .map(|(i, e)| (i, crate::scene::distance_m(e.pose.position, p)))
             .collect();
         v.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
         v

@@ -235,7 +235,7 @@ pub fn render_eval(
             linearize(&load_frame(frame, None)?, scene),
         ));
         let pi = scene.nearest_probe(frame.pose.position);
-        let dist = scene.probes[pi].pose.position.distance(frame.pose.position);
+        let dist = crate::scene::distance_m(scene.probes[pi].pose.position, frame.pose.position);
         let gt_env = prefiltered(&gt, &opts.prefilter)?;
         let envs: Vec<(String, Prefiltered)> = sources
             .iter()

@@ -21,6 +21,12 @@ pub(crate) fn resolve_path(root: &Path, s: &str) -> PathBuf {
     }
 }
 
+/// Distance in metres between two positions, computed in `f64` so that far-apart
+/// positions (squares above `f32::MAX`) still give a finite distance.
+pub fn distance_m(a: Vec3, b: Vec3) -> f32 {
+    a.as_dvec3().distance(b.as_dvec3()) as f32
+}
+
 /// Where a panorama was taken and how it was turned.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
@@ -180,9 +186,15 @@ impl Scene {
                 Vec3::new(m[0][2] as f32, m[1][2] as f32, m[2][2] as f32),
             );
             let fixed = orthonormalize(mat).ok_or_else(|| {
+                let det = mat.determinant();
+                let why = if det < 0.0 {
+                    format!(" (determinant {det:.3}: a reflection; check the axes' handedness)")
+                } else {
+                    String::new()
+                };
                 Error::format(
                     file,
-                    format!("{kind} {}: world_from_camera is not a rotation", e.id),
+                    format!("{kind} {}: world_from_camera is not a rotation{why}", e.id),
                 )
             })?;
             let err = (fixed - mat)
@@ -311,9 +323,11 @@ impl Scene {
     /// Probe indices sorted by distance to `position` (stable for ties).
     pub fn probes_by_distance(&self, position: Vec3) -> Vec<usize> {
         let mut idx: Vec<usize> = (0..self.probes.len()).collect();
+        // In f64: squared distances of far-apart positions overflow f32.
+        let p = position.as_dvec3();
         idx.sort_by(|&a, &b| {
-            let da = self.probes[a].pose.position.distance_squared(position);
-            let db = self.probes[b].pose.position.distance_squared(position);
+            let da = self.probes[a].pose.position.as_dvec3().distance_squared(p);
+            let db = self.probes[b].pose.position.as_dvec3().distance_squared(p);
             da.total_cmp(&db).then(a.cmp(&b))
         });
         idx

@@ -167,12 +167,14 @@ pub fn ypr_to_mat(yaw_deg: f32, pitch_deg: f32, roll_deg: f32) -> Mat3 {
 
 /// Nearest proper rotation to a 3x3 matrix (polar decomposition by Newton iteration),
 /// so poses with slightly non-orthonormal rotations still give a rigid motion.
-/// Returns `None` for a singular or non-finite matrix.
+/// Returns `None` for a singular or non-finite matrix and for a mirror
+/// (determinant < 0): no rotation is near a reflection, and negating it would
+/// turn the camera by 180 degrees instead.
 pub fn orthonormalize(m: Mat3) -> Option<Mat3> {
-    if !m.is_finite() || m.determinant().abs() < 1e-6 {
+    if !m.is_finite() || m.determinant() < 1e-6 {
         return None;
     }
-    let mut x = if m.determinant() < 0.0 { -m } else { m };
+    let mut x = m;
     for _ in 0..30 {
         let inv_t = x.inverse().transpose();
         let next = (x + inv_t) * 0.5;
@@ -275,5 +277,6 @@ mod tests {
         let fixed = orthonormalize(noisy).unwrap();
         assert!((fixed.determinant() - 1.0).abs() < 1e-4);
         assert!(orthonormalize(Mat3::ZERO).is_none());
+        assert!(orthonormalize(Mat3::from_diagonal(Vec3::new(1.0, 1.0, -1.0))).is_none());
     }
 }

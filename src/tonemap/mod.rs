@@ -140,19 +140,21 @@ pub fn reinhard_global(
     let la = log_avg
         .unwrap_or_else(|| log_average_luminance(img))
         .max(1e-12);
-    let scale = key / la;
-    let w2 = white.map(|w| (w * w).max(1e-12));
+    // In f64: near white, f32 rounding of `p * scale * Ld / L` made brighter
+    // greys come out a few ulps darker than dimmer ones.
+    let scale = key as f64 / la as f64;
+    let w2 = white.map(|w| (w as f64 * w as f64).max(1e-12));
     let mut out = Vec::with_capacity(img.data().len());
     for p in img.pixels() {
         let p = [sane(p[0]), sane(p[1]), sane(p[2])];
-        let l = luminance(p) * scale;
+        let l = (0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64) * scale;
         let ld = match w2 {
             Some(w2) => l * (1.0 + l / w2) / (1.0 + l),
             None => l / (1.0 + l),
         };
-        let ratio = if l > 0.0 { (ld / l).min(f32::MAX) } else { 0.0 };
+        let ratio = if l > 0.0 { ld / l } else { 0.0 };
         for k in 0..3 {
-            let v = (p[k] * scale * ratio).clamp(0.0, 1.0);
+            let v = (p[k] as f64 * scale * ratio).clamp(0.0, 1.0) as f32;
             out.push(srgb_oetf(if v.is_finite() { v } else { 1.0 }));
         }
     }

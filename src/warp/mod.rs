@@ -570,7 +570,8 @@ fn match_face(
 ///
 /// `sdr` is the frame (any size), `sdr_linear` the same frame linearised to radiance
 /// (used for the bottom face), `pose` its pose, `probe` the nearest probe prepared
-/// for matching. The output has `out_w x out_h` pixels.
+/// for matching. The output has `out_w x out_h` pixels. A probe or linearised
+/// frame with NaN, infinite or negative samples is an [`Error::Invalid`](crate::Error::Invalid).
 pub fn warp_frame(
     sdr: &SdrImage,
     sdr_linear: &HdrImage,
@@ -581,6 +582,15 @@ pub fn warp_frame(
     out_h: usize,
 ) -> Result<(HdrImage, WarpReport)> {
     use rayon::prelude::*;
+    for (what, img) in [("probe", &*probe.image), ("linearised frame", sdr_linear)] {
+        let bad = img.count_invalid();
+        if bad > 0 {
+            return Err(crate::error::Error::Invalid(format!(
+                "warp: the {what} has {bad} NaN, infinite or negative samples \
+                 (repair them first, e.g. with HdrImage::repair_invalid)"
+            )));
+        }
+    }
     let n = p.face_size_for(sdr.width());
     let display = sdr_display(sdr);
     let rel = pose.from_other(&probe.pose);
