@@ -234,9 +234,22 @@ enum Cmd {
         /// Print JSON.
         #[arg(long)]
         json: bool,
-        /// Method.
-        #[arg(long, value_enum, default_value_t = Method::Warp)]
+        /// Method (the same default as `run`).
+        #[arg(long, value_enum, default_value_t = Method::Fusion)]
         method: Method,
+        /// Error against run time: vary the settings that trade time for quality
+        /// (method, size 256..2048 wide, yaw rotations, detector, ratio, flow preset,
+        /// graph-cut cycles, smoothness, fusion base) one at a time around the given
+        /// ones, time and score each on the scene, and mark the Pareto front.
+        #[arg(long)]
+        sweep: bool,
+        /// Folder for the sweep's sweep.csv, sweep.json, sweep.txt and sweep.png.
+        #[arg(long, requires = "sweep")]
+        report: Option<PathBuf>,
+        /// Internal to `--sweep`: time and score these settings (JSON) in this
+        /// process, printing the JSON report.
+        #[arg(long, hide = true)]
+        point_json: Option<String>,
         #[command(flatten)]
         warp: WarpOpts,
         #[command(flatten)]
@@ -763,11 +776,110 @@ fn real_main(cli: Cli) -> Result<()> {
             repeats,
             json,
             method,
+            sweep,
+            report,
+            point_json,
             warp,
             flow,
         } => {
-            let scene = Scene::load(&scene)?;
+            let scene_dir = scene;
+            let scene = Scene::load(&scene_dir)?;
             let params = run_params(method, size, &warp, &flow);
+            if let Some(js) = point_json {
+                let p: lumiprobe::pipeline::RunParams = serde_json::from_str(&js)
+                    .map_err(|e| Error::Invalid(format!("--point-json: {e}")))?;
+                let r =
+                    lumiprobe::pipeline::bench::bench_scored(&scene, &p, bench_threads, 1, true)?;
+                println!(
+                    "{}",
+                    serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
+                );
+                return Ok(());
+            }
+            if sweep {
+                use lumiprobe::pipeline::sweep;
+                let frame_size = match scene.frames.first() {
+                    Some(f) => {
+                        let s = io::read_sdr(&f.sdr)?;
+                        (s.width(), s.height())
+                    }
+                    None => (0, 0),
+                };
+                let points = sweep::plan(&params, frame_size);
+                eprintln!(
+                    "sweep: {} settings on {} ({} frames, {} thread(s))",
+                    points.len(),
+                    scene.name,
+                    scene.frames.len(),
+                    bench_threads
+                );
+                // Each point in a fresh process, so memory peaks and warm-up costs
+                // are its own.
+                let exe = std::env::current_exe().map_err(|e| Error::Invalid(e.to_string()))?;
+                let measure = |pt: &sweep::SweepPoint| -> lumiprobe::error::Result<
+                    lumiprobe::pipeline::bench::BenchReport,
+                > {
+                    let js = serde_json::to_string(&pt.params)
+                        .map_err(|e| Error::Invalid(e.to_string()))?;
+                    let out = std::process::Command::new(&exe)
+                        .arg("-q")
+                        .arg("bench")
+                        .arg(&scene_dir)
+                        .arg("--bench-threads")
+                        .arg(bench_threads.to_string())
+                        .arg("--point-json")
+                        .arg(&js)
+                        .output()
+                        .map_err(|e| Error::io(&exe, e))?;
+                    if !out.status.success() {
+                        return Err(Error::Invalid(format!(
+                            "sweep point {} {}: {}",
+                            pt.axis,
+                            pt.value,
+                            String::from_utf8_lossy(&out.stderr).trim()
+                        )));
+                    }
+                    serde_json::from_slice(&out.stdout).map_err(|e| {
+                        Error::Invalid(format!(
+                            "sweep point {} {}: bad report: {e}",
+                            pt.axis, pt.value
+                        ))
+                    })
+                };
+                let rows = sweep::run(&scene, &points, measure, |r| {
+                    eprintln!(
+                        "  {:<14} {:<22} {:>9.1} ms/frame  log RMSE {:.4}  PSNR {:.2}",
+                        r.axis, r.value, r.ms_per_frame, r.quality.log_lum_rmse, r.quality.psnr_tm
+                    )
+                })?;
+                let text = sweep::to_text(&rows);
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&rows)
+                            .map_err(|e| Error::Invalid(e.to_string()))?
+                    );
+                } else {
+                    print!("{text}");
+                }
+                if let Some(dir) = report {
+                    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+                    lumiprobe::fsutil::write_atomic(
+                        &dir.join("sweep.csv"),
+                        sweep::to_csv(&rows).as_bytes(),
+                    )?;
+                    lumiprobe::fsutil::write_atomic(&dir.join("sweep.txt"), text.as_bytes())?;
+                    let js = serde_json::to_string_pretty(&rows)
+                        .map_err(|e| Error::Invalid(e.to_string()))?;
+                    lumiprobe::fsutil::write_atomic(&dir.join("sweep.json"), js.as_bytes())?;
+                    io::write_sdr(
+                        &dir.join("sweep.png"),
+                        &sweep::plot(&rows, &scene.name).draw(900, 560),
+                    )?;
+                    eprintln!("wrote {}/sweep.{{csv,json,txt,png}}", dir.display());
+                }
+                return Ok(());
+            }
             let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
             if json {
                 println!(
@@ -781,6 +893,9 @@ fn real_main(cli: Cli) -> Result<()> {
                     "{} {}x{} {:?}, {} thread(s), {} frames x {}: mean {:.1} ms/frame (median {:.1})",
                     r.scene, r.size.0, r.size.1, r.method, r.threads, r.frames, r.repeats, r.mean_ms, r.median_ms
                 );
+                if let Some(c) = r.cpu_ms {
+                    println!("  CPU time of the worker thread: {c:.1} ms/frame");
+                }
                 if ws.features_ms + ws.warp_stitch_ms > 0.0 {
                     println!(
                         "  warp: tonemap {:.1}, features {:.1}, matching {:.1}, warp+stitch {:.1} ms",
@@ -1190,7 +1305,7 @@ fn real_main(cli: Cli) -> Result<()> {
             }
         }
         Cmd::Merge(args) => {
-            lumiprobe::capture::run_merge(&args)?;
+            lumiprobe::capture::run_merge(&args, cli.quiet)?;
         }
         Cmd::Compare { a, b } => {
             let pa = io::read_hdr(&a)?;

@@ -747,21 +747,21 @@ fn cli_merges_files_with_exif_or_given_times() {
         lambda: 10.0,
         samples: 500,
     };
-    let e = run_merge(&args).unwrap_err().to_string();
+    let e = run_merge(&args, true).unwrap_err().to_string();
     assert!(e.contains("ev-2.png") && e.contains("--times"), "{e}");
     args.times = Some(exps.iter().map(|e| e.time_s).collect());
-    let r = run_merge(&args).unwrap();
+    let r = run_merge(&args, true).unwrap();
     assert_eq!(r.frames.len(), 3);
     assert!(lumiprobe::image::io::read_hdr(&out).is_ok());
     // The saved curve can be reused.
     args.response = tmp.path().join("curve.json").display().to_string();
     args.save_response = None;
-    run_merge(&args).unwrap();
+    run_merge(&args, true).unwrap();
     args.times = Some(vec![0.01, 0.0, 0.02]);
-    let e = run_merge(&args).unwrap_err().to_string();
+    let e = run_merge(&args, true).unwrap_err().to_string();
     assert!(e.contains("ev+0.png"), "{e}");
     args.times = Some(vec![0.01]);
-    assert!(run_merge(&args).is_err());
+    assert!(run_merge(&args, true).is_err());
 
     // Dataset JPEGs: times from Exif.
     let Some(dir) = dataset_file("scenes/kitchen/probes/probe_00") else {
@@ -779,7 +779,7 @@ fn cli_merges_files_with_exif_or_given_times() {
         lambda: 10.0,
         samples: 2000,
     };
-    let r = run_merge(&args).unwrap();
+    let r = run_merge(&args, true).unwrap();
     assert_eq!(r.frames.len(), 7);
     assert!((r.frames[0].time_s - 1.0 / 480.0).abs() < 1e-9);
 }

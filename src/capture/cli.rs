@@ -93,8 +93,9 @@ pub fn load_exposures(paths: &[PathBuf], times: Option<&[f64]>) -> Result<Vec<Ex
 }
 
 /// Runs `lumiprobe merge`: loads the brackets, obtains the response, merges,
-/// writes the HDR file (and the curve when asked) and prints a short summary.
-pub fn run_merge(a: &MergeArgs) -> Result<MergeReport> {
+/// writes the HDR file (and the curve when asked) and prints a short summary
+/// unless `quiet` (warnings go to standard error either way).
+pub fn run_merge(a: &MergeArgs, quiet: bool) -> Result<MergeReport> {
     let t0 = std::time::Instant::now();
     let exps = load_exposures(&a.brackets, a.times.as_deref())?;
     super::merge::check_exposures(&exps)?;
@@ -113,7 +114,7 @@ pub fn run_merge(a: &MergeArgs) -> Result<MergeReport> {
             };
             let rec = recover(&images, &times, &opts)?;
             for w in &rec.warnings {
-                println!("warning: {w}");
+                eprintln!("warning: {w}");
             }
             let what = format!(
                 "recovered response (lambda {}, {} samples/channel, RMS residual {:.3} ln)",
@@ -133,13 +134,15 @@ pub fn run_merge(a: &MergeArgs) -> Result<MergeReport> {
     }
     let merged = merge(&exps, &curve, &MergeOptions::default())?;
     crate::image::io::write_hdr(&a.out, &merged.image)?;
-    println!("{what}");
-    print!("{}", merged.report.summary());
-    println!(
-        "wrote {} in {:.0} ms",
-        a.out.display(),
-        t0.elapsed().as_secs_f64() * 1e3
-    );
+    if !quiet {
+        println!("{what}");
+        print!("{}", merged.report.summary());
+        println!(
+            "wrote {} in {:.0} ms",
+            a.out.display(),
+            t0.elapsed().as_secs_f64() * 1e3
+        );
+    }
     Ok(merged.report)
 }
 

@@ -29,6 +29,10 @@ pub struct BenchReport {
     pub mean_ms: f64,
     /// Median wall-clock time per frame in ms.
     pub median_ms: f64,
+    /// Mean CPU time per frame in ms of the one worker thread (single-thread runs on
+    /// Linux only): unlike wall-clock time it barely changes when other work shares
+    /// the machine.
+    pub cpu_ms: Option<f64>,
     /// Mean warp-stage times per frame in ms (summed over the probes warped).
     pub warp_stages: WarpTimings,
     /// Mean flow-stage times per frame in ms.
@@ -39,6 +43,21 @@ pub struct BenchReport {
     pub probe_prepare_ms: f64,
     /// Peak resident memory of the process in MiB (Linux VmHWM), if known.
     pub peak_rss_mib: Option<f64>,
+    /// Mean scores of the last repetition's predictions against the frames' ground
+    /// truth (scored outside the timed section), when asked for and available.
+    pub quality: Option<crate::eval::Metrics>,
+}
+
+/// CPU time this thread has run, in nanoseconds (Linux `schedstat`).
+fn thread_cpu_ns() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    s.split_whitespace().next()?.parse().ok()
+}
+
+/// Resets this process's peak resident memory (Linux `clear_refs` 5), so the next
+/// [`peak_rss_mib`] reports the peak of what runs after it. Returns whether it could.
+pub fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
 /// Peak resident set size of this process in MiB, from `/proc/self/status`.
@@ -64,6 +83,18 @@ pub fn bench(
     params: &RunParams,
     threads: usize,
     repeats: usize,
+) -> Result<BenchReport> {
+    bench_scored(scene, params, threads, repeats, false)
+}
+
+/// [`bench`], and with `score` also the mean quality of the predictions against the
+/// frames' ground truth (for error-against-time sweeps).
+pub fn bench_scored(
+    scene: &crate::scene::Scene,
+    params: &RunParams,
+    threads: usize,
+    repeats: usize,
+    score: bool,
 ) -> Result<BenchReport> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
@@ -117,11 +148,26 @@ pub fn bench(
         let mut warp_stages = WarpTimings::default();
         let mut flow_stages = FlowTimings::default();
         let mut fusion_ms = 0.0;
-        for _ in 0..repeats.max(1) {
+        let mut scores = Vec::new();
+        let mut cpu_ns = Some(0u64);
+        for rep in 0..repeats.max(1) {
+            let last = rep + 1 == repeats.max(1);
             for (f, sdr, lin, used) in &inputs {
+                let c0 = thread_cpu_ns();
                 let t = Instant::now();
-                let (_, wr, fr, fu) = predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
+                let (pred, wr, fr, fu) =
+                    predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
+                cpu_ns = match (cpu_ns, c0, thread_cpu_ns()) {
+                    (Some(acc), Some(a), Some(b)) => Some(acc + b.saturating_sub(a)),
+                    _ => None,
+                };
+                if score && last {
+                    if let Some(gt) = &f.ground_truth {
+                        let gt = crate::image::io::read_hdr(gt)?;
+                        scores.push(crate::eval::compare_resized(&pred, &gt)?);
+                    }
+                }
                 if let Some(w) = wr {
                     add_warp(&mut warp_stages, &w.timings);
                 }
@@ -172,6 +218,9 @@ pub fn bench(
             repeats: repeats.max(1),
             mean_ms: times.iter().sum::<f64>() / n,
             median_ms: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
+            cpu_ms: cpu_ns
+                .filter(|_| threads.max(1) == 1)
+                .map(|ns| ns as f64 / 1e6 / n),
             warp_stages,
             flow_stages,
             fusion_ms: fusion_ms / n,
@@ -181,6 +230,7 @@ pub fn bench(
                 0.0
             },
             peak_rss_mib: peak_rss_mib(),
+            quality: crate::eval::Metrics::mean(&scores),
         })
     })
 }

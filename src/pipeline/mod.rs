@@ -9,6 +9,7 @@ pub mod evaluate;
 pub mod plan;
 pub mod probe_set;
 pub mod render_eval;
+pub mod sweep;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
