@@ -329,10 +329,18 @@ impl SmoothParts {
         let (w, h) = (e.width, e.height);
         let n = w * h;
         let l = e.labels;
-        // A pixel "varies" when some label pair has a non-zero feature distance there.
-        let varies: Vec<bool> = if e.lambda > 0.0 && e.channels > 0 && l > 1 {
-            (0..n)
-                .map(|p| (0..l).any(|a| (a + 1..l).any(|b| e.dist(p, a, b) > 0.0)))
+        // A pixel "varies" when some label pair has a non-zero feature distance
+        // there: when some label's features differ from label 0's (non-finite
+        // features always cost the cap).
+        let c = e.channels;
+        let varies: Vec<bool> = if e.lambda > 0.0 && c > 0 && l > 1 {
+            e.features
+                .chunks_exact(l * c)
+                .map(|f| {
+                    let first = &f[..c];
+                    f.iter().any(|v| !v.is_finite())
+                        || f[c..].chunks_exact(c).any(|g| g != first)
+                })
                 .collect()
         } else {
             vec![false; n]
