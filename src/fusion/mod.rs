@@ -299,11 +299,14 @@ pub fn fuse_with_lights(
         })
         .collect();
     // Per region: the estimate's power above the white point in its neighbourhood,
-    // and the centroids of that light and of the region (relative to a reference
-    // pixel so regions across the seam average correctly).
+    // and the centroids of the estimate's pixels above the white point and of the
+    // region (relative to a reference pixel so regions across the seam average
+    // correctly). Shape against shape: a power-weighted centre moved a lamp that
+    // is brighter on one side even when the estimate had it in the right place.
     let mut est_power = vec![0.0f64; n];
     let mut est_area = vec![0.0f64; n];
     let mut est_c = vec![(0.0f64, 0.0f64); n];
+    let mut est_n = vec![0usize; n];
     let mut area = vec![0.0f64; n];
     let mut core_area = vec![0.0f64; n];
     let mut count = vec![0usize; n];
@@ -326,8 +329,11 @@ pub fn fuse_with_lights(
             let m = (l - white as f64).max(0.0) * sa[y] as f64;
             est_power[o] += m;
             est_area[o] += sa[y] as f64;
-            est_c[o].0 += m * rel_x(x, reference[o]);
-            est_c[o].1 += m * y as f64;
+            if l > white as f64 {
+                est_n[o] += 1;
+                est_c[o].0 += rel_x(x, reference[o]);
+                est_c[o].1 += y as f64;
+            }
         }
         if lab[i] != u32::MAX {
             let o = lab[i] as usize;
@@ -343,13 +349,13 @@ pub fn fuse_with_lights(
     // Shift of each region's light in the estimate relative to the region itself.
     let shift: Vec<(f32, f32)> = (0..n)
         .map(|o| {
-            if est_power[o] <= 0.0 || count[o] == 0 {
+            if est_n[o] == 0 || count[o] == 0 {
                 return (0.0, 0.0);
             }
-            let c = count[o] as f64;
+            let (c, e) = (count[o] as f64, est_n[o] as f64);
             (
-                (est_c[o].0 / est_power[o] - blob_c[o].0 / c) as f32,
-                (est_c[o].1 / est_power[o] - blob_c[o].1 / c) as f32,
+                (est_c[o].0 / e - blob_c[o].0 / c) as f32,
+                (est_c[o].1 / e - blob_c[o].1 / c) as f32,
             )
         })
         .collect();
@@ -720,6 +726,44 @@ mod tests {
         // The estimate's colour is kept.
         let c = out.get(40, 20);
         assert!(c[0] > c[1] && c[1] > c[2]);
+    }
+
+    #[test]
+    fn an_aligned_lamp_brighter_on_one_side_is_not_moved() {
+        let (w, h) = (128, 64);
+        // A 5x5 lamp, every channel clipped, ...
+        let mut codes = vec![100u8; w * h * 3];
+        let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+        for y in 30..35 {
+            for x in 60..65 {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 255]);
+                lin.set(x, y, [1.0, 1.0, 1.0]);
+            }
+        }
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        // ... that the estimate has in exactly the right place, ten times brighter
+        // on its right than on its left: its power-weighted centre is off the
+        // region's centre, its shape is not.
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (60..65).contains(&x) && (30..35).contains(&y) {
+                let v = 100.0 + 225.0 * (x - 60) as f32;
+                [v, v, v]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let p = FusionParams {
+            margin_px: 0,
+            transfer: Transfer::Power,
+            ..Default::default()
+        };
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
+        for y in 30..35 {
+            for x in 60..65 {
+                let (a, b) = (out.get(x, y)[1], est.get(x, y)[1]);
+                assert!((a - b).abs() <= 0.02 * b, "({x}, {y}): {a} vs {b}");
+            }
+        }
     }
 
     #[test]
