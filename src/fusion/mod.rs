@@ -766,10 +766,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn partly_clipped_pixels_keep_their_measured_channels() {
-        let (w, h) = (64, 32);
-        // A sunlit orange wall: red clipped, green and blue measured.
+    /// A sunlit orange wall over x 20..40, y 10..20: red clipped, green and blue
+    /// measured (0.7, 0.1), on a grey 0.2 background.
+    fn orange_wall(w: usize, h: usize) -> (SdrImage, HdrImage) {
         let mut codes = vec![100u8; w * h * 3];
         let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
         for y in 10..20 {
@@ -778,7 +777,13 @@ mod tests {
                 lin.set(x, y, [1.0, 0.7, 0.1]);
             }
         }
-        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+    }
+
+    #[test]
+    fn partly_clipped_pixels_keep_their_measured_channels() {
+        let (w, h) = (64, 32);
+        let (sdr, lin) = orange_wall(w, h);
         // The estimate knows the wall is 1.6x brighter in red than in green.
         let est = HdrImage::from_fn(w, h, |x, y| {
             if (20..40).contains(&x) && (10..20).contains(&y) {
@@ -802,15 +807,7 @@ mod tests {
     fn a_partly_misaligned_estimate_still_gives_the_region_its_colour() {
         let (w, h) = (64, 32);
         // The same sunlit orange wall (true red 1.12, clipped in the frame) ...
-        let mut codes = vec![100u8; w * h * 3];
-        let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
-        for y in 10..20 {
-            for x in 20..40 {
-                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 200, 60]);
-                lin.set(x, y, [1.0, 0.7, 0.1]);
-            }
-        }
-        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        let (sdr, lin) = orange_wall(w, h);
         // ... but the estimate has the sunlit part only over 12 columns and a
         // bluish shadow (red/green 0.86) over the rest of the region.
         let est = HdrImage::from_fn(w, h, |x, y| {
