@@ -645,6 +645,27 @@ fn load_gltf(bytes: &[u8], base: Option<&Path>, name: &Path, limits: &LoadLimits
 /// `min`/`max`, which the loader does not use.
 fn validate_json(root: &gltf::json::Root, name: &Path) -> Result<()> {
     use gltf::json::validation::{Error as VErr, Validate};
+    // gltf-json's primitive check indexes the accessor list with the POSITION
+    // index before that index is range-checked, and panics when it is out of
+    // range; so every attribute's accessor is checked here first.
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            for (semantic, acc) in &prim.attributes {
+                if acc.value() >= root.accessors.len() {
+                    return Err(Error::format(
+                        name,
+                        format!(
+                            "invalid glTF: meshes[{m}].primitives[{p}] attribute {} refers \
+                             to accessor {}, but the file has {} accessors",
+                            semantic.to_string(),
+                            acc.value(),
+                            root.accessors.len()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
     let mut errors: Vec<(gltf::json::Path, VErr)> = Vec::new();
     root.validate(root, gltf::json::Path::new, &mut |path, e| {
         errors.push((path(), e))

@@ -252,6 +252,14 @@ impl Manifest {
                 Err(bad(format!("{key}: {} does not exist", p.display())))
             }
         };
+        // The images of a folder the manifest names; errors name the key.
+        let folder_images = |key: &str, dir: &Path, pattern: Option<&str>| {
+            must_exist(key, dir)?;
+            if !dir.is_dir() {
+                return Err(bad(format!("{key}: {} is not a folder", dir.display())));
+            }
+            images_in(dir, pattern).map_err(|e| bad(format!("{key}: {e}")))
+        };
         let camera = raw.camera.unwrap_or(RawCamera {
             response: None,
             gain: None,
@@ -317,8 +325,7 @@ impl Manifest {
                 None => Vec::new(),
                 Some(RawList::Folder(d)) => {
                     let dir = resolve(d);
-                    must_exist(&format!("{key}.brackets"), &dir)?;
-                    let v = images_in(&dir, None)?;
+                    let v = folder_images(&format!("{key}.brackets"), &dir, None)?;
                     if v.is_empty() {
                         return Err(bad(format!(
                             "{key}.brackets: {} holds no JPEG or PNG image",
@@ -371,8 +378,7 @@ impl Manifest {
             (None, None) => return Err(bad("frames: give `folder` or `video`".into())),
             (Some(d), None) => {
                 let dir = resolve(d);
-                must_exist("frames.folder", &dir)?;
-                let v = images_in(&dir, fr.pattern.as_deref())?;
+                let v = folder_images("frames.folder", &dir, fr.pattern.as_deref())?;
                 if v.is_empty() {
                     return Err(bad(format!(
                         "frames.folder: no image in {} matches {}",

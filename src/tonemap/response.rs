@@ -142,7 +142,12 @@ impl Response {
             return Some(Response::Srgb);
         }
         if let Some(g) = t.strip_prefix("gamma") {
-            return g.parse::<f32>().ok().map(|gamma| Response::Gamma { gamma });
+            // Like the formula below, only a usable curve (finite gamma > 0).
+            return g
+                .parse::<f32>()
+                .ok()
+                .map(|gamma| Response::Gamma { gamma })
+                .filter(|r| r.validate().is_ok());
         }
         // min(1,S*x^(1/G)/(1+K*x^(1/G)))
         let start = t.find("min(1,")? + "min(1,".len();
