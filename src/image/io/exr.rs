@@ -3,8 +3,10 @@
 //! Reading takes the first layer with `R`, `G`, `B` channels (any of half, float
 //! or u32; alpha and other channels are dropped), or else the first with a `Y`
 //! (luminance) channel, replicated to RGB. The header is parsed and the data
-//! window checked against [`Limits`] before any pixel is decoded. Decoding is
-//! single-threaded so that a fault in the decoder stays catchable.
+//! window checked against [`Limits`] before any pixel is decoded, and so is the
+//! size of every layer's blocks (tiles or scan-line groups), which the decoder
+//! allocates as declared. Decoding is single-threaded so that a fault in the
+//! decoder stays catchable.
 //!
 //! Writing stores float32 RGB with lossless ZIP compression unless
 //! [`ExrWriteOptions`] ask for half floats.
@@ -119,6 +121,7 @@ fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> 
         }
         let size = h.layer_size;
         check_dims(name, size.width() as u64, size.height() as u64, limits)?;
+        check_block_sizes(&meta, name, limits)?;
         let (w, h) = (size.width(), size.height());
         let img = match kind {
             Kind::Rgb => read_rgb(bytes, name, limits)?,
@@ -151,6 +154,49 @@ fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> 
             }
         ),
     ))
+}
+
+/// Bytes per pixel of the limit one block may take (four float channels).
+const MAX_BLOCK_BYTES_PER_PIXEL: u64 = 16;
+/// Block size always allowed, so that small limits still admit the 16- to
+/// 256-line blocks of small images.
+const MIN_BLOCK_BYTES_LIMIT: u64 = 16 << 20;
+
+/// The decoder allocates a buffer for a whole block (a tile, or a group of scan
+/// lines) as its header declares it, before reading the block, and a tile size
+/// is not bounded by the image size. So every layer's blocks are held to the
+/// pixel limit too: at most [`MAX_BLOCK_BYTES_PER_PIXEL`]` * limits.max_pixels`
+/// bytes (and at least [`MIN_BLOCK_BYTES_LIMIT`]).
+fn check_block_sizes(meta: &::exr::meta::MetaData, name: &Path, limits: &Limits) -> Result<()> {
+    use ::exr::meta::BlockDescription;
+    let max = limits
+        .max_pixels
+        .saturating_mul(MAX_BLOCK_BYTES_PER_PIXEL)
+        .max(MIN_BLOCK_BYTES_LIMIT);
+    for (i, h) in meta.headers.iter().enumerate() {
+        let (bw, bh, kind) = match h.blocks {
+            BlockDescription::Tiles(t) => (t.tile_size.width(), t.tile_size.height(), "tiles"),
+            BlockDescription::ScanLines => (
+                h.layer_size.width(),
+                h.compression.scan_lines_per_block(),
+                "scan-line blocks",
+            ),
+        };
+        let bytes = (bw as u64)
+            .saturating_mul(bh as u64)
+            .saturating_mul(h.channels.bytes_per_pixel as u64);
+        if bytes > max {
+            return Err(Error::format(
+                name,
+                format!(
+                    "OpenEXR layer {i} has {kind} of {bw}x{bh} pixels at {} bytes each, more \
+                     than the limit of {max} bytes per block",
+                    h.channels.bytes_per_pixel
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn read_rgb(bytes: &[u8], name: &Path, limits: &Limits) -> Result<Pixels> {
@@ -208,6 +254,18 @@ fn exr_error(name: &Path, what: &str, e: ::exr::error::Error) -> Error {
 /// Refuses NaN/Inf samples and, for half output, values above 65504 unless
 /// [`Overflow::Clamp`] is chosen.
 pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec<u8>> {
+    let mut out = Cursor::new(Vec::new());
+    encode_to(img, name, opts, &mut out)?;
+    Ok(out.into_inner())
+}
+
+/// [`encode`] into any seekable writer.
+fn encode_to(
+    img: &HdrImage,
+    name: &Path,
+    opts: &ExrWriteOptions,
+    mut out: impl std::io::Write + std::io::Seek,
+) -> Result<()> {
     let (w, h) = (img.width(), img.height());
     check_nonempty(name, w, h)?;
     check_finite(name, img)?;
@@ -217,7 +275,6 @@ pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec
         line_order: ::exr::meta::attribute::LineOrder::Increasing,
     };
     let attributes = ::exr::meta::header::LayerAttributes::default();
-    let mut out = Cursor::new(Vec::new());
     let result = if opts.half {
         let (count, max) = img
             .data()
@@ -258,15 +315,13 @@ pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec
         .write()
         .to_buffered(&mut out)
     };
-    result
-        .map_err(|e| Error::Invalid(format!("{}: cannot encode OpenEXR: {e}", name.display())))?;
-    Ok(out.into_inner())
+    result.map_err(|e| Error::Invalid(format!("{}: cannot encode OpenEXR: {e}", name.display())))
 }
 
-/// Writes an OpenEXR file atomically with the given options.
+/// Writes an OpenEXR file atomically with the given options, streaming it to disk
+/// (a 7776 x 3888 float image is 360 MB; it is not assembled in memory first).
 pub fn write(path: &Path, img: &HdrImage, opts: &ExrWriteOptions) -> Result<()> {
-    let bytes = encode(img, path, opts)?;
-    crate::fsutil::write_atomic(path, &bytes)
+    crate::fsutil::write_atomic_seekable(path, |w| encode_to(img, path, opts, w))
 }
 
 #[cfg(test)]
