@@ -88,6 +88,39 @@ pub fn write_atomic_with(
     })
 }
 
+/// Like [`write_atomic_with`], for encoders that seek (formats with offset tables,
+/// such as OpenEXR), so a large file is streamed to disk instead of assembled in
+/// memory first. `fill` writes to the buffered temporary file; its error is
+/// returned as is, after the temporary file is removed.
+pub fn write_atomic_seekable(
+    path: &Path,
+    fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        }
+    }
+    let tmp = temp_path(path);
+    let result = (|| -> Result<()> {
+        let f = std::fs::File::create(&tmp).map_err(|e| Error::io(path, e))?;
+        let mut w = std::io::BufWriter::new(f);
+        fill(&mut w)?;
+        let f = w
+            .into_inner()
+            .map_err(|e| Error::io(path, e.into_error()))?;
+        f.sync_all().map_err(|e| Error::io(path, e))
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
 /// Reads a whole file, naming it in the error.
 pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))

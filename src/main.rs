@@ -73,9 +73,14 @@ struct WarpOpts {
     /// Half-extent of matched face images (1 = the 90° face; more adds a margin).
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().face_extent)]
     face_extent: f32,
-    /// Cube face size (default: a quarter of the panorama width).
+    /// Cube face size (default: a quarter of the panorama width, at most
+    /// `--max-face-size`).
     #[arg(long)]
     face_size: Option<usize>,
+    /// Largest automatic face size: wider panoramas are matched at this working
+    /// resolution.
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().max_face_size)]
+    max_face_size: usize,
 }
 
 impl WarpOpts {
@@ -93,6 +98,7 @@ impl WarpOpts {
             candidates: self.candidates,
             probe_tonemap: self.probe_tonemap,
             face_size: self.face_size,
+            max_face_size: self.max_face_size,
             max_features: self.max_features,
             detector_threshold: self.detector_threshold,
             blur_sigma: self.blur_sigma,
@@ -147,6 +153,10 @@ struct FlowOpts {
     /// Weight of the colour term against the confidence and distance terms.
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_weight)]
     dc_weight: f32,
+    /// Widest frame the flow method processes at full resolution; wider frames run
+    /// flow and graph cut at 1/k size (0 = always full resolution).
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().work_width)]
+    flow_work_width: usize,
 }
 
 impl FlowOpts {
@@ -163,6 +173,7 @@ impl FlowOpts {
             clipped_potts: self.clipped_potts,
             seam_clipped: self.seam_clipped,
             dc_weight: self.dc_weight,
+            work_width: self.flow_work_width,
             ..Default::default()
         };
         p.flow.preset = self.flow_preset;

@@ -51,7 +51,29 @@ impl Default for FlowParams {
     }
 }
 
+impl FlowPreset {
+    /// OpenCV's finest pyramid level for the preset.
+    pub fn finest_scale(self) -> i32 {
+        match self {
+            FlowPreset::Ultrafast | FlowPreset::Fast => 2,
+            FlowPreset::Medium => 1,
+        }
+    }
+}
+
 impl FlowParams {
+    /// These settings for images reduced `k` times: the finest pyramid level moves
+    /// `log2 k` levels down (not below full resolution), so the flow is as fine in
+    /// the full-size image as it would be there (DIS's patch size and finest level
+    /// are in pixels).
+    pub fn reduced(&self, k: usize) -> FlowParams {
+        let shift = (k.max(1) as f64).log2().round() as i32;
+        let finest = self.finest_scale.unwrap_or(self.preset.finest_scale());
+        let mut r = self.clone();
+        r.finest_scale = Some((finest - shift).max(0));
+        r
+    }
+
     fn dis(&self) -> DisParams {
         DisParams {
             preset: match self.preset {

@@ -132,17 +132,25 @@ pub fn bench_scored(
                 .clone()
                 .map_err(Error::Invalid)
         };
-        let mut inputs = Vec::new();
-        for f in &scene.frames {
+        // Frames are read (untimed) when they are predicted, one at a time as in a
+        // run: holding every frame would dominate the peak memory at large sizes.
+        let load = |f: &crate::scene::Frame| -> Result<_> {
             let sdr = load_frame(f, params.size)?;
             let lin = linearize(&sdr, scene);
+            Ok((sdr, lin))
+        };
+        let mut inputs = Vec::new();
+        let mut size = None;
+        for f in &scene.frames {
             let mut used = scene.probes_by_distance(f.pose.position);
             used.truncate(params.method.probes_needed());
-            inputs.push((f, sdr, lin, used));
+            inputs.push((f, used));
         }
         // Untimed pass: loads probes and computes every probe face's features once.
-        for (f, sdr, lin, used) in &inputs {
-            predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
+        for (f, used) in &inputs {
+            let (sdr, lin) = load(f)?;
+            size.get_or_insert((sdr.width(), sdr.height()));
+            predict_frame(scene, f, &sdr, &lin, used, &get_probe, params)?;
         }
         let mut times = Vec::new();
         let mut warp_stages = WarpTimings::default();
@@ -152,11 +160,12 @@ pub fn bench_scored(
         let mut cpu_ns = Some(0u64);
         for rep in 0..repeats.max(1) {
             let last = rep + 1 == repeats.max(1);
-            for (f, sdr, lin, used) in &inputs {
+            for (f, used) in &inputs {
+                let (sdr, lin) = load(f)?;
                 let c0 = thread_cpu_ns();
                 let t = Instant::now();
                 let (pred, wr, fr, fu) =
-                    predict_frame(scene, f, sdr, lin, used, &get_probe, params)?;
+                    predict_frame(scene, f, &sdr, &lin, used, &get_probe, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 cpu_ns = match (cpu_ns, c0, thread_cpu_ns()) {
                     (Some(acc), Some(a), Some(b)) => Some(acc + b.saturating_sub(a)),
@@ -202,10 +211,7 @@ pub fn bench_scored(
         }
         let mut sorted = times.clone();
         sorted.sort_by(f64::total_cmp);
-        let size = inputs
-            .first()
-            .map(|(_, s, _, _)| (s.width(), s.height()))
-            .unwrap_or((0, 0));
+        let size = size.unwrap_or((0, 0));
         let (prep_ms, prepared) = *prep_total
             .lock()
             .map_err(|_| Error::Invalid("timer lock".into()))?;

@@ -12,7 +12,9 @@ pub mod render_eval;
 pub mod sweep;
 
 use crate::error::{Error, Result};
-use crate::flow::method::{flow_frame, FlowMethodParams, FlowReport, Source};
+use crate::flow::method::{
+    flow_frame, flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource, Source,
+};
 use crate::fusion::lights::{find_lights, triangulate};
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
@@ -20,7 +22,8 @@ use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// Methods that predict a probe per frame.
@@ -271,81 +274,128 @@ fn run_named(
     crate::fsutil::remove_stale_temps(out_dir);
     crate::cv::set_num_threads(1);
     let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
-    let probes: Vec<OnceLock<std::result::Result<(Arc<PreparedProbe>, usize), String>>> =
-        scene.probes.iter().map(|_| OnceLock::new()).collect();
-    let get_probe = |i: usize| -> Result<(Arc<PreparedProbe>, usize)> {
-        probes[i]
-            .get_or_init(|| {
-                load_probe(scene, i, params.size)
-                    .map(|(img, rep)| {
-                        let pp = PreparedProbe::new(
-                            Arc::new(img),
-                            scene.probes[i].pose,
-                            params.warp.probe_tonemap,
-                            &scene.response,
-                            scene.path_gain,
-                        );
-                        (Arc::new(pp), rep)
-                    })
-                    .map_err(|e| e.to_string())
-            })
-            .clone()
-            .map_err(Error::Invalid)
-    };
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    let total = scene.frames.len();
-    let results: Vec<Result<(FrameRecord, bool)>> = scene
+    // Per frame: the probes it uses, its fingerprint, and its record when its
+    // outputs are already up to date.
+    let inputs: Vec<(Vec<usize>, String, Option<FrameRecord>)> = scene
         .frames
-        .par_iter()
-        .map(|frame| {
-            let (used, fp) = frame_inputs(scene, frame, params, &settings);
-            let pi = used[0];
-            let probe_meta = &scene.probes[pi];
-            let out = out_dir.join(format!("{}.exr", frame.id));
-            let side = out_dir.join(format!("{}.json", frame.id));
-            if let Some(rec) = up_to_date(out_dir, frame, &fp) {
-                progress(
-                    done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
-                    total,
-                );
-                return Ok((rec, true));
-            }
-            let sdr = load_frame(frame, params.size)?;
-            let mut repaired = 0;
-            for &u in &used {
-                repaired += get_probe(u)?.1;
-            }
-            let t = Instant::now();
-            let lin = linearize(&sdr, scene);
-            let (img, warp_report, flow_report, fusion_report) =
-                predict_frame(scene, frame, &sdr, &lin, &used, &get_probe, params)?;
-            let total_ms = t.elapsed().as_secs_f64() * 1e3;
-            io::write_hdr(&out, &img)?;
-            let rec = FrameRecord {
-                id: frame.id.clone(),
-                probe: probe_meta.id.clone(),
-                probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
-                probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
-                warp: warp_report,
-                flow: flow_report,
-                fusion: fusion_report,
-                total_ms,
-                repaired_pixels: repaired,
-                fingerprint: fp,
-            };
-            let json =
-                serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
-            crate::fsutil::write_atomic(&side, &json)?;
-            progress(
-                done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
-                total,
-            );
-            Ok((rec, false))
+        .iter()
+        .map(|f| {
+            let (used, fp) = frame_inputs(scene, f, params, &settings);
+            let kept = up_to_date(out_dir, f, &fp);
+            (used, fp, kept)
         })
         .collect();
+    // A probe is loaded when a frame first needs it and dropped once no frame left
+    // to compute needs it, so memory does not grow with the number of probes (at
+    // 7776 x 3888 each takes 360 MB).
+    let remaining: Vec<AtomicUsize> = scene.probes.iter().map(|_| AtomicUsize::new(0)).collect();
+    for (used, _, kept) in &inputs {
+        if kept.is_none() {
+            for &u in used {
+                remaining[u].fetch_add(1, Ordering::SeqCst);
+            }
+        }
+    }
+    type Slot = Mutex<Option<std::result::Result<(Arc<PreparedProbe>, usize), String>>>;
+    let probes: Vec<Slot> = scene.probes.iter().map(|_| Mutex::new(None)).collect();
+    let get_probe = |i: usize| -> Result<(Arc<PreparedProbe>, usize)> {
+        let mut slot = probes[i]
+            .lock()
+            .map_err(|_| Error::Invalid("probe cache poisoned".into()))?;
+        slot.get_or_insert_with(|| {
+            load_probe(scene, i, params.size)
+                .map(|(img, rep)| {
+                    let pp = PreparedProbe::new(
+                        Arc::new(img),
+                        scene.probes[i].pose,
+                        params.warp.probe_tonemap,
+                        &scene.response,
+                        scene.path_gain,
+                    );
+                    (Arc::new(pp), rep)
+                })
+                .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(Error::Invalid)
+    };
+    let release = |used: &[usize]| {
+        for &u in used {
+            if remaining[u].fetch_sub(1, Ordering::SeqCst) == 1 {
+                if let Ok(mut slot) = probes[u].lock() {
+                    *slot = None;
+                }
+            }
+        }
+    };
+    let done = AtomicUsize::new(0);
+    let total = scene.frames.len();
+    let compute = |frame: &Frame, used: &[usize], fp: &str| -> Result<FrameRecord> {
+        let probe_meta = &scene.probes[used[0]];
+        let out = out_dir.join(format!("{}.exr", frame.id));
+        let side = out_dir.join(format!("{}.json", frame.id));
+        let sdr = load_frame(frame, params.size)?;
+        let mut repaired = 0;
+        for &u in used {
+            repaired += get_probe(u)?.1;
+        }
+        let t = Instant::now();
+        let lin = linearize(&sdr, scene);
+        let (img, warp_report, flow_report, fusion_report) =
+            predict_frame(scene, frame, &sdr, &lin, used, &get_probe, params)?;
+        let total_ms = t.elapsed().as_secs_f64() * 1e3;
+        drop((sdr, lin));
+        io::write_hdr(&out, &img)?;
+        let rec = FrameRecord {
+            id: frame.id.clone(),
+            probe: probe_meta.id.clone(),
+            probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
+            probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
+            warp: warp_report,
+            flow: flow_report,
+            fusion: fusion_report,
+            total_ms,
+            repaired_pixels: repaired,
+            fingerprint: fp.to_string(),
+        };
+        let json = serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
+        crate::fsutil::write_atomic(&side, &json)?;
+        Ok(rec)
+    };
+    // Each worker takes the next frame in walk order, so the frames in flight are
+    // neighbours that share their probes.
+    let next = AtomicUsize::new(0);
+    let results: Vec<Mutex<Option<Result<(FrameRecord, bool)>>>> =
+        scene.frames.iter().map(|_| Mutex::new(None)).collect();
+    let workers = rayon::current_num_threads().clamp(1, scene.frames.len().max(1));
+    (0..workers).into_par_iter().for_each(|_| loop {
+        let i = next.fetch_add(1, Ordering::SeqCst);
+        let Some(frame) = scene.frames.get(i) else {
+            break;
+        };
+        let (used, fp, kept) = &inputs[i];
+        let r = match kept {
+            Some(rec) => Ok((rec.clone(), true)),
+            None => {
+                let r = compute(frame, used, fp).map(|rec| (rec, false));
+                release(used);
+                r
+            }
+        };
+        if r.is_ok() {
+            progress(done.fetch_add(1, Ordering::SeqCst) + 1, total);
+        }
+        if let Ok(mut slot) = results[i].lock() {
+            *slot = Some(r);
+        }
+    });
     let mut frames = Vec::new();
     let mut resumed = Vec::new();
     for r in results {
+        let r = r
+            .into_inner()
+            .map_err(|_| Error::Invalid("frame result lock poisoned".into()))?
+            .ok_or_else(|| Error::Invalid("a frame was not processed".into()))?;
         let (rec, was_resumed) = r?;
         if was_resumed {
             resumed.push(rec.id.clone());
@@ -477,6 +527,49 @@ pub fn predict_frame(
             (img, Some(r), None, None)
         }
         Method::Fusion => unreachable!("handled above"),
+        Method::Flow | Method::Hybrid if params.flow.work_factor(w) > 1 => {
+            // Wide frames: the flow method reads the probes where they are (no
+            // full-size rotated copies) and works at a reduced size.
+            let mut probes = Vec::with_capacity(used.len());
+            let mut warped = Vec::new();
+            let mut first_warp = None;
+            for &u in used {
+                let (pp, _) = get_probe(u)?;
+                if params.method == Method::Hybrid {
+                    let (img, r) =
+                        warp::warp_frame(sdr, lin, &frame.pose, &pp, &params.warp, w, h)?;
+                    first_warp.get_or_insert(r);
+                    warped.push(img);
+                }
+                probes.push(pp);
+            }
+            let sources: Vec<RotatedSource> = used
+                .iter()
+                .enumerate()
+                .map(|(i, &u)| {
+                    let (image, rotation) = if params.method == Method::Hybrid {
+                        (&warped[i], glam::Mat3::IDENTITY)
+                    } else {
+                        (&*probes[i].image, frame.pose.from_other(&probes[i].pose))
+                    };
+                    RotatedSource {
+                        name: scene.probes[u].id.clone(),
+                        image,
+                        rotation,
+                        distance_m: distance_m(scene.probes[u].pose.position, frame.pose.position),
+                    }
+                })
+                .collect();
+            let (img, r) = flow_frame_scaled(
+                sdr,
+                lin,
+                &sources,
+                &scene.response,
+                scene.path_gain,
+                &params.flow,
+            )?;
+            (img, first_warp, Some(r), None)
+        }
         Method::Flow | Method::Hybrid => {
             let mut imgs = Vec::with_capacity(used.len());
             let mut first_warp = None;

@@ -71,8 +71,27 @@ pub fn row_solid_angles(w: usize, h: usize) -> Vec<f32> {
 /// the opposite longitude), so there is no discontinuity anywhere on the sphere.
 #[inline]
 pub fn sample_px(img: &HdrImage, x: f32, y: f32) -> [f32; 3] {
-    let w = img.width() as i64;
-    let h = img.height() as i64;
+    let d = img.data();
+    sample_px_by(img.width(), img.height(), x, y, |i| {
+        [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
+    })
+}
+
+/// [`sample_px`] of a `w x h` panorama whose pixel `i` (row-major) has the value
+/// `px(i)`, computed only at the four pixels sampled: a panorama held in another
+/// form (8-bit codes, radiance to be tone-mapped) is sampled exactly as
+/// [`sample_px`] would sample it once converted to `f32`, without the converted copy.
+#[inline]
+pub fn sample_px_by(
+    w: usize,
+    h: usize,
+    x: f32,
+    y: f32,
+    px: impl Fn(usize) -> [f32; 3],
+) -> [f32; 3] {
+    let wu = w;
+    let w = w as i64;
+    let h = h as i64;
     let xf = x - 0.5;
     let yf = y - 0.5;
     let x0 = xf.floor();
@@ -83,14 +102,14 @@ pub fn sample_px(img: &HdrImage, x: f32, y: f32) -> [f32; 3] {
     let y0 = y0 as i64;
     if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
         // Interior: no wrapping needed.
-        let (x0, y0, wu) = (x0 as usize, y0 as usize, w as usize);
-        let d = img.data();
-        let i = 3 * (y0 * wu + x0);
-        let j = i + 3 * wu;
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        let i = y0 * wu + x0;
+        let j = i + wu;
+        let (a, b, c, d) = (px(i), px(i + 1), px(j), px(j + 1));
         let mut out = [0.0; 3];
         for k in 0..3 {
-            let top = d[i + k] + (d[i + 3 + k] - d[i + k]) * fx;
-            let bot = d[j + k] + (d[j + 3 + k] - d[j + k]) * fx;
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
             out[k] = top + (bot - top) * fy;
         }
         return out;
@@ -106,7 +125,7 @@ pub fn sample_px(img: &HdrImage, x: f32, y: f32) -> [f32; 3] {
         }
         let yi = yi.clamp(0, h - 1);
         let xi = xi.rem_euclid(w);
-        img.get(xi as usize, yi as usize)
+        px(yi as usize * wu + xi as usize)
     };
     let a = fetch(x0, y0);
     let b = fetch(x0 + 1, y0);

@@ -42,8 +42,16 @@ pub enum CandidateMode {
 pub struct WarpParams {
     /// Yaw rotations of the probe (step `90° / yaw_steps`).
     pub yaw_steps: usize,
-    /// Cube face size in pixels; `None` uses a quarter of the panorama width.
+    /// Cube face size in pixels; `None` uses a quarter of the panorama width, at
+    /// most `max_face_size`.
     pub face_size: Option<usize>,
+    /// Largest face size chosen automatically: features of wider panoramas are
+    /// matched at this working resolution (homographies are in face coordinates,
+    /// so they apply at any output size). SIFT on a 7776-pixel-wide panorama's
+    /// 1944-pixel faces takes about 0.9 GB per face and finds nothing a 1024-pixel
+    /// face does not.
+    #[serde(default = "default_max_face_size")]
+    pub max_face_size: usize,
     /// Feature detector.
     pub detector: Detector,
     /// Keep at most this many features per face (0 = no limit).
@@ -85,11 +93,16 @@ pub struct WarpParams {
     pub probe_tonemap: ProbeTonemap,
 }
 
+fn default_max_face_size() -> usize {
+    1024
+}
+
 impl Default for WarpParams {
     fn default() -> Self {
         WarpParams {
             yaw_steps: 4,
             face_size: None,
+            max_face_size: default_max_face_size(),
             detector: Detector::Sift,
             max_features: 300,
             detector_threshold: 0.02,
@@ -115,7 +128,8 @@ impl Default for WarpParams {
 impl WarpParams {
     /// Face size used for a panorama `width` pixels wide.
     pub fn face_size_for(&self, width: usize) -> usize {
-        self.face_size.unwrap_or((width / 4).max(8))
+        self.face_size
+            .unwrap_or((width / 4).min(self.max_face_size).max(8))
     }
     /// Feature detection settings.
     pub fn detect_params(&self) -> DetectParams {
@@ -214,13 +228,22 @@ pub(crate) fn px_to_fc(x: f32, m: usize, e: f32) -> f32 {
     e * (2.0 * (x + 0.5) / m as f32 - 1.0)
 }
 
-/// 8-bit gray image of `face` (extent `e`, `m` pixels) of a panorama holding display
-/// values in [0, 1], seen by a camera rotated by `r`.
-pub(crate) fn gray_face(display: &HdrImage, face: CubeFace, m: usize, e: f32, r: Mat3) -> Vec<u8> {
-    let lut = geometry::face_lookup(face, m, e, r, display.width(), display.height());
+/// 8-bit gray image of `face` (extent `e`, `m` pixels) of a `w x h` panorama whose
+/// pixel `i` holds the display values `px(i)` in [0, 1], seen by a camera rotated
+/// by `r`.
+pub(crate) fn gray_face(
+    w: usize,
+    h: usize,
+    face: CubeFace,
+    m: usize,
+    e: f32,
+    r: Mat3,
+    px: impl Fn(usize) -> [f32; 3],
+) -> Vec<u8> {
+    let lut = geometry::face_lookup(face, m, e, r, w, h);
     lut.iter()
         .map(|&[x, y]| {
-            let c = crate::sphere::sample_px(display, x, y);
+            let c = crate::sphere::sample_px_by(w, h, x, y, &px);
             ((0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]).clamp(0.0, 1.0) * 255.0 + 0.5) as u8
         })
         .collect()
@@ -368,7 +391,7 @@ fn ms(t: Instant) -> f64 {
 
 fn match_face(
     f: CubeFace,
-    display: &HdrImage,
+    sdr: &SdrImage,
     n: usize,
     rel: Mat3,
     probe: &PreparedProbe,
@@ -411,7 +434,16 @@ fn match_face(
         });
     }
     let t0 = Instant::now();
-    let gray = gray_face(display, f, m, e, Mat3::IDENTITY);
+    // The frame's display values (codes / 255, as `sdr_display`), read from the codes.
+    let codes = sdr.data();
+    let gray = gray_face(sdr.width(), sdr.height(), f, m, e, Mat3::IDENTITY, |i| {
+        let c = &codes[3 * i..3 * i + 3];
+        [
+            c[0] as f32 / 255.0,
+            c[1] as f32 / 255.0,
+            c[2] as f32 / 255.0,
+        ]
+    });
     let tonemap_ms = ms(t0);
     let t1 = Instant::now();
     let feats: Features = cv::detect(&gray, m, m, &p.detect_params())?;
@@ -592,11 +624,10 @@ pub fn warp_frame(
         }
     }
     let n = p.face_size_for(sdr.width());
-    let display = sdr_display(sdr);
     let rel = pose.from_other(&probe.pose);
     let matched: Vec<Result<FaceResult>> = FACES[..5]
         .par_iter()
-        .map(|&f| match_face(f, &display, n, rel, probe, p))
+        .map(|&f| match_face(f, sdr, n, rel, probe, p))
         .collect();
     let mut maps = [FaceMap::Sdr; 6];
     let mut faces = Vec::with_capacity(6);
@@ -622,13 +653,7 @@ pub fn warp_frame(
         homography: None,
     });
     let t = Instant::now();
-    // Near-white SDR codes are only a lower bound on radiance (the sensor clipped).
-    let clipped: Vec<bool> = sdr
-        .data()
-        .chunks_exact(3)
-        .map(|c| c.iter().any(|&v| v >= CLIP_CODE))
-        .collect();
-    let out = stitch(&maps, rel, probe, sdr_linear, &clipped, p, out_w, out_h);
+    let out = stitch(&maps, rel, probe, sdr, sdr_linear, p, out_w, out_h);
     timings.warp_stitch_ms = ms(t);
     Ok((out, WarpReport { faces, timings }))
 }
@@ -666,13 +691,14 @@ fn face_value(
 /// Assembles the output panorama: each pixel takes the mapping of the cube face it
 /// falls on, cross-faded with the neighbouring face's mapping near face edges. The
 /// SDR face reads the frame's own pixel (output and frame share their size) or
-/// samples it when the sizes differ.
+/// samples it when the sizes differ. The geometry comes from the shared stitch map
+/// when it is small enough to keep, else it is made row by row.
 fn stitch(
     maps: &[FaceMap; 6],
     rel: Mat3,
     probe: &PreparedProbe,
+    sdr: &SdrImage,
     sdr_linear: &HdrImage,
-    clipped: &[bool],
     p: &WarpParams,
     w: usize,
     h: usize,
@@ -680,21 +706,37 @@ fn stitch(
     use rayon::prelude::*;
     let geo = geometry::stitch_map(w, h, p.seam_blend);
     let same_size = sdr_linear.width() == w && sdr_linear.height() == h;
+    let codes = sdr.data();
     let hdr = &probe.image;
     let mut out = HdrImage::new(w, h);
     out.rows_mut()
         .enumerate()
         .par_bridge()
         .for_each(|(row, line)| {
+            let mut own = geometry::RowMap::default();
+            let (dirs, start, taps) = match &geo {
+                Some(g) => (
+                    &g.dirs[row * w..(row + 1) * w],
+                    &g.start[row * w..(row + 1) * w + 1],
+                    &g.taps[..],
+                ),
+                None => {
+                    geometry::stitch_row(row, w, h, p.seam_blend, &mut own);
+                    (&own.dirs[..], &own.start[..], &own.taps[..])
+                }
+            };
             for col in 0..w {
                 let i = row * w + col;
-                let d = geo.dirs[i];
+                let d = dirs[col];
                 let mut acc = [0.0f32; 3];
-                for t in &geo.taps[geo.start[i] as usize..geo.start[i + 1] as usize] {
+                for t in &taps[start[col] as usize..start[col + 1] as usize] {
                     let v = match &maps[t.face as usize] {
                         FaceMap::Sdr if same_size => {
                             let v = sdr_linear.get(col, row);
-                            if clipped[i] {
+                            // Near-white SDR codes are only a lower bound on radiance
+                            // (the sensor clipped).
+                            let clipped = codes[3 * i..3 * i + 3].iter().any(|&c| c >= CLIP_CODE);
+                            if clipped {
                                 // The true radiance is at least what the SDR shows; the
                                 // probe supplies the part above the white point.
                                 let f = sample_dir(hdr, rel * d);

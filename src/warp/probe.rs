@@ -36,8 +36,16 @@ pub struct PreparedProbe {
     pub image: Arc<HdrImage>,
     /// Its pose.
     pub pose: Pose,
-    /// Display values in [0, 1] used for matching.
-    display: HdrImage,
+    /// How it is tone-mapped for matching.
+    mode: ProbeTonemap,
+    /// The SDR camera's response and gain ([`ProbeTonemap::Camera`]).
+    camera: Response,
+    gain: f32,
+    /// Display values in [0, 1], made on first use. With [`ProbeTonemap::Camera`]
+    /// matching never needs it: the response is applied to the samples taken (a
+    /// full-size copy is as large as the probe itself, and the flow method does not
+    /// match features at all).
+    display: OnceLock<HdrImage>,
     /// Cache keyed by (yaw step, face index, face size).
     cache: Mutex<
         Vec<(
@@ -48,7 +56,7 @@ pub struct PreparedProbe {
 }
 
 impl PreparedProbe {
-    /// Tone-maps `image` for matching; `camera` gives the SDR response and gain used
+    /// Prepares `image` for matching; `camera` gives the SDR response and gain used
     /// by [`ProbeTonemap::Camera`].
     pub fn new(
         image: Arc<HdrImage>,
@@ -57,31 +65,52 @@ impl PreparedProbe {
         camera: &Response,
         gain: f32,
     ) -> Self {
-        let display = match mode {
-            ProbeTonemap::Reinhard05 => {
-                let v = Reinhard05::default().apply(&image);
-                HdrImage::from_vec(image.width(), image.height(), v).expect("same size")
-            }
-            ProbeTonemap::Camera => {
-                let v = image
-                    .data()
-                    .iter()
-                    .map(|&x| camera.encode(x * gain))
-                    .collect();
-                HdrImage::from_vec(image.width(), image.height(), v).expect("same size")
-            }
-        };
         PreparedProbe {
             image,
             pose,
-            display,
+            mode,
+            camera: camera.clone(),
+            gain,
+            display: OnceLock::new(),
             cache: Mutex::new(Vec::new()),
         }
     }
 
-    /// Display image used for matching (for inspection).
+    /// Display image used for matching (for inspection; made on first call).
     pub fn display(&self) -> &HdrImage {
-        &self.display
+        self.display.get_or_init(|| {
+            let image = &self.image;
+            let v = match self.mode {
+                ProbeTonemap::Reinhard05 => Reinhard05::default().apply(image),
+                ProbeTonemap::Camera => image
+                    .data()
+                    .iter()
+                    .map(|&x| self.camera.encode(x * self.gain))
+                    .collect(),
+            };
+            HdrImage::from_vec(image.width(), image.height(), v).expect("same size")
+        })
+    }
+
+    /// 8-bit gray image of `face` (`n` pixels, extent `e`) of the display image,
+    /// seen by a camera rotated by `rot`.
+    fn gray(&self, face: CubeFace, n: usize, e: f32, rot: glam::Mat3) -> Vec<u8> {
+        let (w, h) = (self.image.width(), self.image.height());
+        match self.mode {
+            ProbeTonemap::Camera => {
+                let d = self.image.data();
+                let enc = |v: f32| self.camera.encode(v * self.gain);
+                gray_face(w, h, face, n, e, rot, |i| {
+                    [enc(d[3 * i]), enc(d[3 * i + 1]), enc(d[3 * i + 2])]
+                })
+            }
+            ProbeTonemap::Reinhard05 => {
+                let d = self.display().data();
+                gray_face(w, h, face, n, e, rot, |i| {
+                    [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
+                })
+            }
+        }
     }
 
     /// Features of `face` at rotation step `k`, computed on first use. The flag is
@@ -112,7 +141,7 @@ impl PreparedProbe {
         let r = cell.get_or_init(|| {
             computed = true;
             let rot = ypr_to_mat(p.yaw_deg(k), 0.0, 0.0);
-            let gray = gray_face(&self.display, face, n, p.face_extent.max(1.0), rot);
+            let gray = self.gray(face, n, p.face_extent.max(1.0), rot);
             cv::detect(&gray, n, n, &p.detect_params())
                 .and_then(|f| {
                     MatchIndex::new(&f, p.flann_checks)
@@ -123,6 +152,36 @@ impl PreparedProbe {
         match r {
             Ok(f) => Ok((f.clone(), computed)),
             Err(e) => Err(Error::OpenCv(e.clone())),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sphere::FACES;
+    use glam::{Mat3, Vec3};
+
+    #[test]
+    fn camera_faces_read_from_radiance_equal_those_of_the_display_image() {
+        let (w, h) = (64, 32);
+        let img = HdrImage::from_fn(w, h, |x, y| {
+            let v = (x as f32 * 0.37).sin().abs() * 3.0 + (y as f32 * 0.21).cos().abs();
+            [v, 0.5 * v, 0.1 * x as f32]
+        });
+        let pose = Pose {
+            position: Vec3::ZERO,
+            world_from_camera: Mat3::IDENTITY,
+        };
+        let resp = Response::Gamma { gamma: 2.2 };
+        let pp = PreparedProbe::new(Arc::new(img), pose, ProbeTonemap::Camera, &resp, 0.7);
+        let rot = ypr_to_mat(22.5, 0.0, 0.0);
+        let d = pp.display().data();
+        for face in FACES {
+            let from_display = gray_face(w, h, face, 24, 1.2, rot, |i| {
+                [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
+            });
+            assert_eq!(pp.gray(face, 24, 1.2, rot), from_display);
         }
     }
 }
