@@ -338,8 +338,7 @@ impl SmoothParts {
                 .chunks_exact(l * c)
                 .map(|f| {
                     let first = &f[..c];
-                    f.iter().any(|v| !v.is_finite())
-                        || f[c..].chunks_exact(c).any(|g| g != first)
+                    f.iter().any(|v| !v.is_finite()) || f[c..].chunks_exact(c).any(|g| g != first)
                 })
                 .collect()
         } else {
