@@ -16,6 +16,8 @@ pub struct Light {
     pub dir: Vec3,
     /// Power above the threshold (luminance x solid angle).
     pub power: f64,
+    /// Solid angle of the region in steradians.
+    pub solid_angle: f64,
 }
 
 /// A light seen by two probes and placed in the world.
@@ -29,9 +31,37 @@ pub struct PlacedLight {
     pub dir: Vec3,
     /// `(power, distance)` as seen from each probe.
     pub seen: [(f64, f32); 2],
+    /// Mean radiance above the threshold as each probe saw it (power over solid
+    /// angle). Radiance does not change along rays, so no part of the source can
+    /// look brighter than this from anywhere, unless a probe did not resolve it.
+    pub radiance: [f64; 2],
+}
+
+impl Light {
+    /// Mean radiance above the threshold (power over solid angle; 0 for an empty
+    /// region).
+    pub fn radiance(&self) -> f64 {
+        if self.solid_angle > 0.0 {
+            self.power / self.solid_angle
+        } else {
+            0.0
+        }
+    }
 }
 
 impl PlacedLight {
+    /// True when the two probes agree on the light's intensity (power times squared
+    /// distance, constant for a compact source) within a factor `max_ratio`. A
+    /// source at infinity must show the same power to both.
+    pub fn consistent(&self, max_ratio: f64) -> bool {
+        let i = |k: usize| self.seen[k].0 * (self.seen[k].1 as f64).powi(2);
+        let (a, b) = (i(0), i(1));
+        if !(a.is_finite() && b.is_finite() && a > 0.0 && b > 0.0) {
+            return false;
+        }
+        a.max(b) <= max_ratio * a.min(b)
+    }
+
     /// Direction (world axes) and power of the light as seen from `p`.
     pub fn seen_from(&self, p: Vec3) -> (Vec3, f64) {
         if self.at_infinity {
@@ -56,7 +86,7 @@ pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, min_px: usize) -
     let sa = row_solid_angles(w, h);
     let bright: Vec<bool> = img.pixels().map(|p| luminance(p) > threshold).collect();
     let (lab, n) = components(&bright, w, h);
-    let mut acc = vec![(Vec3::ZERO, 0.0f64, 0usize); n];
+    let mut acc = vec![(Vec3::ZERO, 0.0f64, 0usize, 0.0f64); n];
     for (i, &l) in lab.iter().enumerate() {
         if l == u32::MAX {
             continue;
@@ -67,12 +97,14 @@ pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, min_px: usize) -
         a.0 += pose.world_from_camera * pixel_to_dir(x, y, w, h) * m as f32;
         a.1 += m;
         a.2 += 1;
+        a.3 += sa[y] as f64;
     }
     acc.into_iter()
         .filter(|a| a.2 >= min_px && a.1 > 0.0 && a.0.length() > 0.0)
         .map(|a| Light {
             dir: a.0.normalize(),
             power: a.1,
+            solid_angle: a.3,
         })
         .collect()
 }
@@ -118,18 +150,21 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
         }
         used_a[i] = true;
         used_b[j] = true;
+        let radiance = [a[i].radiance(), b[j].radiance()];
         out.push(match pos {
             Some(x) => PlacedLight {
                 position: x,
                 at_infinity: false,
                 dir: Vec3::ZERO,
                 seen: [(a[i].power, x.distance(pa)), (b[j].power, x.distance(pb))],
+                radiance,
             },
             None => PlacedLight {
                 position: Vec3::ZERO,
                 at_infinity: true,
                 dir: (a[i].dir + b[j].dir).normalize(),
                 seen: [(a[i].power, 1.0), (b[j].power, 1.0)],
+                radiance,
             },
         });
     }
@@ -147,14 +182,17 @@ mod tests {
         let la = Light {
             dir: (lamp - pa).normalize(),
             power: 2.0,
+            solid_angle: 0.01,
         };
         let lb = Light {
             dir: (lamp - pb).normalize(),
             power: 2.0,
+            solid_angle: 0.01,
         };
         let far = Light {
             dir: Vec3::new(0.0, -1.0, 0.0),
             power: 1.0,
+            solid_angle: 0.01,
         };
         let placed = triangulate(&[la, far], pa, &[far, lb], pb, 0.2);
         assert_eq!(placed.len(), 2);
@@ -171,5 +209,33 @@ mod tests {
         );
         let sun = placed.iter().find(|p| p.at_infinity).unwrap();
         assert!((sun.seen_from(frame).1 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn probes_that_disagree_on_a_lights_intensity_are_inconsistent() {
+        let lamp = Vec3::new(1.0, 0.5, 2.6);
+        let (pa, pb) = (Vec3::new(0.0, 0.0, 1.5), Vec3::new(3.0, 0.0, 1.5));
+        let (da, db) = (lamp.distance(pa) as f64, lamp.distance(pb) as f64);
+        let light = |pw_a: f64, pw_b: f64| {
+            let la = Light {
+                dir: (lamp - pa).normalize(),
+                power: pw_a,
+                solid_angle: 0.01,
+            };
+            let lb = Light {
+                dir: (lamp - pb).normalize(),
+                power: pw_b,
+                solid_angle: 0.01,
+            };
+            triangulate(&[la], pa, &[lb], pb, 0.2)[0]
+        };
+        // A compact source: power falls with the squared distance, same intensity.
+        assert!(light(1.0, (da / db).powi(2)).consistent(2.0));
+        // One probe sees ten times the intensity (a window seen whole by one probe,
+        // as a sliver by the other).
+        assert!(!light(1.0, 0.1 * (da / db).powi(2)).consistent(2.0));
+        assert!(!light(0.0, 1.0).consistent(2.0));
+        // Radiance is power over solid angle.
+        assert!((light(1.0, 1.0).radiance[0] - 100.0).abs() < 1e-9);
     }
 }

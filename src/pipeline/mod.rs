@@ -504,6 +504,12 @@ pub fn predict_frame(
                 b.pose.position,
                 params.fusion.max_gap_m,
             ) {
+                // Two probes that disagree on the light's intensity (power times
+                // squared distance) saw different parts of it or different lights:
+                // the inverse-square model does not hold, the estimate decides.
+                if !l.consistent(params.fusion.max_intensity_ratio) {
+                    continue;
+                }
                 let (d, mut pw) = l.seen_from(frame.pose.position);
                 // A frame taken at a probe (within 1 mm) sees the light exactly as
                 // that probe did: no extrapolation from the other one.
@@ -513,7 +519,11 @@ pub fn predict_frame(
                 } else if at(b.pose.position) {
                     pw = l.seen[1].0;
                 }
-                placed.push((to_frame * d, pw));
+                placed.push(crate::fusion::FrameLight {
+                    dir: to_frame * d,
+                    power: pw,
+                    radiance: l.radiance[0].max(l.radiance[1]),
+                });
             }
         }
         let (img, mut rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
