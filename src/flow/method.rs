@@ -607,9 +607,18 @@ pub fn flow_frame_scaled(
     }
     let k = p.work_factor(w);
     if k <= 1 {
-        let rotated: Vec<HdrImage> = sources
+        // A source already in the frame's orientation and size (the hybrid's warped
+        // probes) is used as it is.
+        let rotated: Vec<std::borrow::Cow<HdrImage>> = sources
             .iter()
-            .map(|s| crate::sphere::rotate(s.image, s.rotation, w, h))
+            .map(|s| {
+                let same_size = s.image.width() == w && s.image.height() == h;
+                if same_size && s.rotation == glam::Mat3::IDENTITY {
+                    std::borrow::Cow::Borrowed(s.image)
+                } else {
+                    std::borrow::Cow::Owned(crate::sphere::rotate(s.image, s.rotation, w, h))
+                }
+            })
             .collect();
         let plain: Vec<Source> = sources
             .iter()

@@ -761,14 +761,23 @@ mod tests {
             power,
             radiance: 49.0,
         };
-        let (_, rep) = fuse_with_lights(&sdr, &lin, &est, 1.0, &[light(4900.0 * area)], &p).unwrap();
+        let (_, rep) =
+            fuse_with_lights(&sdr, &lin, &est, 1.0, &[light(4900.0 * area)], &p).unwrap();
         assert!(rep.blobs[0].placed);
         let filled = rep.blobs[0].filled_power;
-        assert!((filled - 49.0 * area).abs() < 1e-3 * filled, "{filled} vs {}", 49.0 * area);
+        assert!(
+            (filled - 49.0 * area).abs() < 1e-3 * filled,
+            "{filled} vs {}",
+            49.0 * area
+        );
         // Below the bound the placed power is kept as it is.
         let (_, rep) = fuse_with_lights(&sdr, &lin, &est, 1.0, &[light(20.0 * area)], &p).unwrap();
         let filled = rep.blobs[0].filled_power;
-        assert!((filled - 20.0 * area).abs() < 1e-3 * filled, "{filled} vs {}", 20.0 * area);
+        assert!(
+            (filled - 20.0 * area).abs() < 1e-3 * filled,
+            "{filled} vs {}",
+            20.0 * area
+        );
     }
 
     #[test]

@@ -12,9 +12,7 @@ pub mod render_eval;
 pub mod sweep;
 
 use crate::error::{Error, Result};
-use crate::flow::method::{
-    flow_frame, flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource, Source,
-};
+use crate::flow::method::{flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource};
 use crate::fusion::lights::{find_lights, triangulate};
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
@@ -537,9 +535,10 @@ pub fn predict_frame(
             (img, Some(r), None, None)
         }
         Method::Fusion => unreachable!("handled above"),
-        Method::Flow | Method::Hybrid if params.flow.work_factor(w) > 1 => {
-            // Wide frames: the flow method reads the probes where they are (no
-            // full-size rotated copies) and works at a reduced size.
+        Method::Flow | Method::Hybrid => {
+            // The flow method reads the probes where they are, through their
+            // rotation into the frame (hybrid: the probes warped to the frame), and
+            // works at a reduced size for wide frames.
             let mut probes = Vec::with_capacity(used.len());
             let mut warped = Vec::new();
             let mut first_warp = None;
@@ -571,40 +570,6 @@ pub fn predict_frame(
                 })
                 .collect();
             let (img, r) = flow_frame_scaled(
-                sdr,
-                lin,
-                &sources,
-                &scene.response,
-                scene.path_gain,
-                &params.flow,
-            )?;
-            (img, first_warp, Some(r), None)
-        }
-        Method::Flow | Method::Hybrid => {
-            let mut imgs = Vec::with_capacity(used.len());
-            let mut first_warp = None;
-            for &u in used {
-                let (pp, _) = get_probe(u)?;
-                let img = if params.method == Method::Flow {
-                    crate::sphere::rotate(&pp.image, frame.pose.from_other(&pp.pose), w, h)
-                } else {
-                    let (img, r) =
-                        warp::warp_frame(sdr, lin, &frame.pose, &pp, &params.warp, w, h)?;
-                    first_warp.get_or_insert(r);
-                    img
-                };
-                imgs.push(img);
-            }
-            let sources: Vec<Source> = used
-                .iter()
-                .zip(&imgs)
-                .map(|(&u, img)| Source {
-                    name: scene.probes[u].id.clone(),
-                    image: img,
-                    distance_m: distance_m(scene.probes[u].pose.position, frame.pose.position),
-                })
-                .collect();
-            let (img, r) = flow_frame(
                 sdr,
                 lin,
                 &sources,
