@@ -1163,13 +1163,10 @@ fn real_main(cli: Cli) -> Result<()> {
             let t0 = std::time::Instant::now();
             let mut panos = Vec::new();
             for p in &scene.probes {
-                // The bracket nearest 0 EV, else the HDR through the frames' camera.
-                let image = match p
-                    .brackets
-                    .iter()
-                    .min_by(|a, b| a.ev.abs().total_cmp(&b.ev.abs()))
-                {
-                    Some(b) => io::read_sdr(&b.file)?,
+                // The bracket nearest mid-grey, else the HDR through the frames' camera.
+                let files: Vec<&Path> = p.brackets.iter().map(|b| b.file.as_path()).collect();
+                let image = match lumiprobe::capture::localize::mid_grey_bracket(&files)? {
+                    Some(img) => img,
                     None => {
                         let (hdr, _) = lumiprobe::pipeline::load_probe(
                             &scene,

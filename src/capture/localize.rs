@@ -74,6 +74,23 @@ pub struct Panorama {
     pub image: SdrImage,
 }
 
+/// The bracket to show the feature matcher for a probe: the one whose mean code is
+/// nearest mid-grey (110), so that the probe looks most like the walk's frames.
+/// `None` for an empty list.
+pub fn mid_grey_bracket(files: &[&Path]) -> Result<Option<SdrImage>> {
+    let mut best: Option<(f64, SdrImage)> = None;
+    for f in files {
+        let img = crate::image::io::read_sdr(f)?;
+        let n = img.data().len().max(1) as f64;
+        let mean = img.data().iter().map(|&c| c as f64).sum::<f64>() / n;
+        let d = (mean - 110.0).abs();
+        if best.as_ref().is_none_or(|(bd, _)| d < *bd) {
+            best = Some((d, img));
+        }
+    }
+    Ok(best.map(|(_, img)| img))
+}
+
 /// Where a pose came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

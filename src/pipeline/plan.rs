@@ -121,17 +121,8 @@ fn probe_view_image(
     p: &crate::scene::manifest::ProbeSource,
     hdr: Option<&Path>,
 ) -> Result<crate::image::SdrImage> {
-    let mut best: Option<(f64, crate::image::SdrImage)> = None;
-    for b in &p.brackets {
-        let img = io::read_sdr(b)?;
-        let mean =
-            img.data().iter().map(|&c| c as f64).sum::<f64>() / img.data().len().max(1) as f64;
-        let d = (mean - 110.0).abs();
-        if best.as_ref().is_none_or(|(bd, _)| d < *bd) {
-            best = Some((d, img));
-        }
-    }
-    if let Some((_, img)) = best {
+    let files: Vec<&Path> = p.brackets.iter().map(|b| b.as_path()).collect();
+    if let Some(img) = crate::capture::localize::mid_grey_bracket(&files)? {
         return Ok(img);
     }
     let path = hdr.ok_or_else(|| Error::Invalid(format!("probe {} has no image", p.id)))?;
