@@ -18,8 +18,7 @@ use lumiprobe::scene::manifest::Manifest;
 use lumiprobe::scene::Scene;
 use lumiprobe::tonemap::Response;
 use lumiprobe::{Error, SdrImage};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 
 /// The limits the single-format image targets decode with.
@@ -31,39 +30,9 @@ const ANY_LIMITS: Limits = Limits {
     max_pixels: 1 << 24,
 };
 
-// ---------------------------------------------------------------------------
-// The largest single allocation made by this thread (as in tests/io_formats.rs).
-
-struct PeakAlloc;
-
-thread_local! {
-    static PEAK: Cell<usize> = const { Cell::new(0) };
-}
-
-fn note(size: usize) {
-    let _ = PEAK.try_with(|p| p.set(p.get().max(size)));
-}
-
-unsafe impl GlobalAlloc for PeakAlloc {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        note(l.size());
-        System.alloc(l)
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        note(l.size());
-        System.alloc_zeroed(l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, new_size: usize) -> *mut u8 {
-        note(new_size);
-        System.realloc(p, l, new_size)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-}
-
-#[global_allocator]
-static GLOBAL: PeakAlloc = PeakAlloc;
+#[path = "common/peak_alloc.rs"]
+mod peak_alloc;
+use peak_alloc::peak_alloc;
 
 /// Largest single allocation an image target may make for an input of `len`
 /// bytes (the fuzz targets check the same bound on the total, see
@@ -282,9 +251,9 @@ fn fuzz_regressions_are_rejected_cleanly() {
                 .file_name()
                 .is_some_and(|f| f.to_string_lossy().starts_with("dep-panic-"));
             PANICS.with(|p| p.borrow_mut().clear());
-            PEAK.with(|p| p.set(0));
-            let r = std::panic::catch_unwind(|| replay(&target, &data, &input, scratch.path()));
-            let peak = PEAK.with(|p| p.get());
+            let (r, peak) = peak_alloc(|| {
+                std::panic::catch_unwind(|| replay(&target, &data, &input, scratch.path()))
+            });
             let panics = PANICS.with(|p| p.borrow_mut().split_off(0));
             let limits = match target.as_str() {
                 "exr" | "rgbe" | "pfm" | "ldr" => Some(IMAGE_LIMITS),

@@ -9,54 +9,11 @@ use lumiprobe::image::io::{
 };
 use lumiprobe::tonemap::Response;
 use lumiprobe::{HdrImage, SdrImage};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::{Path, PathBuf};
 
-// ---------------------------------------------------------------------------
-// Allocation tracking: the largest single allocation made by this thread.
-
-struct PeakAlloc;
-
-thread_local! {
-    static PEAK: Cell<usize> = const { Cell::new(0) };
-}
-
-fn note(size: usize) {
-    let _ = PEAK.try_with(|p| {
-        if size > p.get() {
-            p.set(size)
-        }
-    });
-}
-
-unsafe impl GlobalAlloc for PeakAlloc {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        note(l.size());
-        System.alloc(l)
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        note(l.size());
-        System.alloc_zeroed(l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, new_size: usize) -> *mut u8 {
-        note(new_size);
-        System.realloc(p, l, new_size)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-}
-
-#[global_allocator]
-static GLOBAL: PeakAlloc = PeakAlloc;
-
-/// Largest single allocation made while running `f` on this thread.
-fn peak_alloc<T>(f: impl FnOnce() -> T) -> (T, usize) {
-    PEAK.with(|p| p.set(0));
-    let r = f();
-    (r, PEAK.with(|p| p.get()))
-}
+#[path = "common/peak_alloc.rs"]
+mod peak_alloc;
+use peak_alloc::peak_alloc;
 
 // ---------------------------------------------------------------------------
 // Sample images and valid encodings.

@@ -122,53 +122,66 @@ pub fn assert_names_file(e: &Error, name: &Path) {
     );
 }
 
-/// Checks an HDR read: within limits and memory bound on success, naming the
+/// Width, height and sample count of a decoded image, HDR or 8-bit.
+pub trait Decoded {
+    /// `(width, height, samples)`.
+    fn dims(&self) -> (usize, usize, usize);
+}
+
+impl Decoded for HdrImage {
+    fn dims(&self) -> (usize, usize, usize) {
+        (self.width(), self.height(), self.data().len())
+    }
+}
+
+impl Decoded for SdrImage {
+    fn dims(&self) -> (usize, usize, usize) {
+        (self.width(), self.height(), self.data().len())
+    }
+}
+
+/// Checks an image read: within limits and memory bound on success, naming the
 /// file on failure.
+pub fn check_image<I: Decoded>(
+    name: &Path,
+    limits: &Limits,
+    len: usize,
+    f: impl FnOnce() -> lumiprobe::Result<I>,
+) {
+    let (r, peak) = peak_during(f);
+    let bound = image_memory_bound(limits, len);
+    assert!(
+        peak <= bound,
+        "{}: {peak} bytes live at once, bound {bound}",
+        name.display()
+    );
+    match r {
+        Ok(img) => {
+            let (w, h, n) = img.dims();
+            assert!(w > 0 && h > 0, "empty image accepted");
+            assert!((w as u64) * (h as u64) <= limits.max_pixels);
+            assert_eq!(n, w * h * 3);
+        }
+        Err(e) => assert_names_file(&e, name),
+    }
+}
+
+/// [`check_image`] for an HDR read.
 pub fn check_hdr(
     name: &Path,
     limits: &Limits,
     len: usize,
     f: impl FnOnce() -> lumiprobe::Result<HdrImage>,
 ) {
-    let (r, peak) = peak_during(f);
-    let bound = image_memory_bound(limits, len);
-    assert!(
-        peak <= bound,
-        "{}: {peak} bytes live at once, bound {bound}",
-        name.display()
-    );
-    match r {
-        Ok(img) => {
-            let (w, h) = (img.width(), img.height());
-            assert!(w > 0 && h > 0, "empty image accepted");
-            assert!((w as u64) * (h as u64) <= limits.max_pixels);
-            assert_eq!(img.data().len(), w * h * 3);
-        }
-        Err(e) => assert_names_file(&e, name),
-    }
+    check_image(name, limits, len, f)
 }
 
-/// Checks an 8-bit read like [`check_hdr`].
+/// [`check_image`] for an 8-bit read.
 pub fn check_sdr(
     name: &Path,
     limits: &Limits,
     len: usize,
     f: impl FnOnce() -> lumiprobe::Result<SdrImage>,
 ) {
-    let (r, peak) = peak_during(f);
-    let bound = image_memory_bound(limits, len);
-    assert!(
-        peak <= bound,
-        "{}: {peak} bytes live at once, bound {bound}",
-        name.display()
-    );
-    match r {
-        Ok(img) => {
-            let (w, h) = (img.width(), img.height());
-            assert!(w > 0 && h > 0, "empty image accepted");
-            assert!((w as u64) * (h as u64) <= limits.max_pixels);
-            assert_eq!(img.data().len(), w * h * 3);
-        }
-        Err(e) => assert_names_file(&e, name),
-    }
+    check_image(name, limits, len, f)
 }
