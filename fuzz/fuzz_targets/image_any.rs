@@ -11,7 +11,7 @@
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use lumiprobe::image::io::{decode_hdr, decode_sdr, Limits};
-use lumiprobe_fuzz::{check_hdr, check_sdr};
+use lumiprobe_fuzz::check_image;
 use std::path::Path;
 
 const NAMES: [&str; 8] = [
@@ -26,10 +26,10 @@ fuzz_target!(|data: &[u8]| {
     let limits = Limits {
         max_pixels: 1 << 24,
     };
-    check_hdr(name, &limits, bytes.len(), || {
+    check_image(name, &limits, bytes.len(), || {
         decode_hdr(bytes, name, &limits)
     });
-    check_sdr(name, &limits, bytes.len(), || {
+    check_image(name, &limits, bytes.len(), || {
         decode_sdr(bytes, name, &limits)
     });
 });

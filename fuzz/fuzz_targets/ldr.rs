@@ -4,7 +4,7 @@
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use lumiprobe::image::io::{ldr, Format};
-use lumiprobe_fuzz::{check_sdr, IMAGE_LIMITS};
+use lumiprobe_fuzz::{check_image, IMAGE_LIMITS};
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
@@ -18,7 +18,7 @@ fuzz_target!(|data: &[u8]| {
     } else {
         "fuzz.jpg"
     });
-    check_sdr(name, &IMAGE_LIMITS, data.len(), || {
+    check_image(name, &IMAGE_LIMITS, data.len(), || {
         ldr::decode(data, name, format, &IMAGE_LIMITS)
     });
 });

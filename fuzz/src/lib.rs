@@ -165,23 +165,3 @@ pub fn check_image<I: Decoded>(
         Err(e) => assert_names_file(&e, name),
     }
 }
-
-/// [`check_image`] for an HDR read.
-pub fn check_hdr(
-    name: &Path,
-    limits: &Limits,
-    len: usize,
-    f: impl FnOnce() -> lumiprobe::Result<HdrImage>,
-) {
-    check_image(name, limits, len, f)
-}
-
-/// [`check_image`] for an 8-bit read.
-pub fn check_sdr(
-    name: &Path,
-    limits: &Limits,
-    len: usize,
-    f: impl FnOnce() -> lumiprobe::Result<SdrImage>,
-) {
-    check_image(name, limits, len, f)
-}
