@@ -153,12 +153,18 @@ pub fn sample_dir(img: &HdrImage, d: Vec3) -> [f32; 3] {
 pub fn rotate(img: &HdrImage, r: Mat3, out_w: usize, out_h: usize) -> HdrImage {
     use rayon::prelude::*;
     let mut out = HdrImage::new(out_w, out_h);
+    // The pixel directions are separable: sines and cosines once per column and
+    // per row (the same arithmetic as `pixel_to_dir`, so the same directions).
+    let cols: Vec<(f32, f32)> = (0..out_w)
+        .map(|col| (((col as f32 + 0.5) / out_w as f32 - 0.5) * 2.0 * PI).sin_cos())
+        .collect();
     out.rows_mut()
         .enumerate()
         .par_bridge()
         .for_each(|(row, line)| {
-            for col in 0..out_w {
-                let d = r * pixel_to_dir(col, row, out_w, out_h);
+            let (st, ct) = ((0.5 - (row as f32 + 0.5) / out_h as f32) * PI).sin_cos();
+            for (col, &(sp, cp)) in cols.iter().enumerate() {
+                let d = r * Vec3::new(ct * sp, st, -ct * cp);
                 let c = sample_dir(img, d);
                 line[3 * col..3 * col + 3].copy_from_slice(&c);
             }
