@@ -1207,9 +1207,9 @@ fn real_main(cli: Cli) -> Result<()> {
             }
             match pose_errors(&loc, &reference) {
                 Some((e, _)) => println!(
-                    "{}: {} panoramas, {} registered, {} interpolated, {} missing; after a similarity alignment: position error median {:.3} m, max {:.3} m; rotation error median {:.2} deg, max {:.2} deg; {:.0} s",
+                    "{}: {} panoramas, {} registered, {} interpolated, {} missing; after a similarity alignment: position error median {:.3} m, max {:.3} m; after aligning orientations: rotation error median {:.2} deg, max {:.2} deg; relative rotation error between panoramas median {:.2} deg; {:.0} s",
                     scene.name, loc.len(), e.registered, e.interpolated, e.missing,
-                    e.median_pos_m, e.max_pos_m, e.median_rot_deg, e.max_rot_deg, secs
+                    e.median_pos_m, e.max_pos_m, e.median_rot_deg, e.max_rot_deg, e.median_rel_rot_deg, secs
                 ),
                 None => println!("{}: too few registered panoramas to align ({:.0} s)", scene.name, secs),
             }

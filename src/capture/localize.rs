@@ -630,10 +630,18 @@ pub struct PoseErrors {
     pub median_pos_m: f32,
     /// Largest position error, metres.
     pub max_pos_m: f32,
-    /// Median rotation error, degrees.
+    /// Median rotation error, degrees, after the rotation that best aligns the
+    /// orientations (their chordal mean). The positions' similarity cannot fix
+    /// the rotation well for a walk that keeps one height: a tilt about the walk's
+    /// line costs no position error and would show as a rotation error of every
+    /// panorama.
     pub median_rot_deg: f32,
-    /// Largest rotation error, degrees.
+    /// Largest rotation error, degrees (as `median_rot_deg`).
     pub max_rot_deg: f32,
+    /// Median error of the relative rotation between every pair of panoramas,
+    /// degrees: free of any alignment, and what the methods use (a frame's
+    /// orientation relative to its probes).
+    pub median_rel_rot_deg: f32,
     /// Scale of the alignment (metres per COLMAP unit).
     pub scale: f32,
 }
@@ -657,14 +665,35 @@ pub fn pose_errors(
     let from: Vec<Vec3> = reg.iter().map(|(e, _)| e.pose.unwrap().position).collect();
     let to: Vec<Vec3> = reg.iter().map(|(_, r)| r.position).collect();
     let (s, rot, t) = align_similarity(&from, &to)?;
+    let angle = |m: Mat3| {
+        let c = ((m.x_axis.x + m.y_axis.y + m.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+        c.acos().to_degrees()
+    };
+    // Orientation alignment: the rotation nearest the sum of ref * est^T.
+    let sum = pairs.iter().fold(Mat3::ZERO, |acc, (e, r)| {
+        acc + r.world_from_camera * e.pose.unwrap().world_from_camera.transpose()
+    });
+    let rot_align = orthonormalize(sum).unwrap_or(rot);
     let mut pos: Vec<f32> = Vec::new();
     let mut ang: Vec<f32> = Vec::new();
     for (e, r) in &pairs {
         let p = e.pose.unwrap();
         pos.push((s * (rot * p.position) + t).distance(r.position));
-        let m = r.world_from_camera.transpose() * rot * p.world_from_camera;
-        let c = ((m.x_axis.x + m.y_axis.y + m.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
-        ang.push(c.acos().to_degrees());
+        ang.push(angle(
+            r.world_from_camera.transpose() * rot_align * p.world_from_camera,
+        ));
+    }
+    let mut rel: Vec<f32> = Vec::new();
+    for (i, (ei, ri)) in pairs.iter().enumerate() {
+        for (ej, rj) in &pairs[i + 1..] {
+            let est = ei.pose.unwrap().world_from_camera.transpose()
+                * ej.pose.unwrap().world_from_camera;
+            let truth = ri.world_from_camera.transpose() * rj.world_from_camera;
+            rel.push(angle(truth.transpose() * est));
+        }
+    }
+    if rel.is_empty() {
+        rel.push(0.0);
     }
     let med = |v: &mut Vec<f32>| {
         v.sort_by(f32::total_cmp);
@@ -691,6 +720,7 @@ pub fn pose_errors(
             max_pos_m: mp,
             median_rot_deg: med(&mut ang),
             max_rot_deg: mr,
+            median_rel_rot_deg: med(&mut rel),
             scale: s,
         },
         (s, rot, t),
@@ -700,6 +730,56 @@ pub fn pose_errors(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pose_errors_do_not_depend_on_the_frame_of_reference() {
+        // A straight walk at one height, in the world; the "estimate" is the same
+        // walk seen through a similarity (scale 2.5, a turn, a shift).
+        let reference: Vec<(String, Pose)> = (0..6)
+            .map(|i| {
+                let pose = Pose {
+                    position: Vec3::new(0.5 * i as f32, 0.0, 1.5),
+                    world_from_camera: Mat3::from_rotation_z(0.3 * i as f32),
+                };
+                (format!("p{i}"), pose)
+            })
+            .collect();
+        let g = Mat3::from_euler(glam::EulerRot::XYZ, 0.4, -0.2, 1.1);
+        let estimate = |tilt_one: f32| -> Vec<Localized> {
+            let shift = Vec3::new(3.0, -1.0, 0.5);
+            reference
+                .iter()
+                .enumerate()
+                .map(|(i, (id, r))| {
+                    let extra = if i == 2 {
+                        Mat3::from_rotation_x(tilt_one)
+                    } else {
+                        Mat3::IDENTITY
+                    };
+                    Localized {
+                        id: id.clone(),
+                        is_probe: i == 0,
+                        pose: Some(Pose {
+                            position: g.transpose() * (r.position * 2.5) + shift,
+                            world_from_camera: g.transpose() * r.world_from_camera * extra,
+                        }),
+                        views_registered: 8,
+                        source: PoseSource::Registered,
+                    }
+                })
+                .collect()
+        };
+        let (e, _) = pose_errors(&estimate(0.0), &reference).unwrap();
+        assert!(e.max_pos_m < 1e-3, "{e:?}");
+        assert!(e.max_rot_deg < 0.05 && e.median_rel_rot_deg < 0.05, "{e:?}");
+        assert!((e.scale - 0.4).abs() < 1e-3, "{e:?}");
+        // One panorama turned by 6 degrees: it shows as that panorama's error, and
+        // most pairs' relative rotations stay exact.
+        let (e, _) = pose_errors(&estimate(6f32.to_radians()), &reference).unwrap();
+        assert!(e.max_rot_deg > 4.0 && e.max_rot_deg < 6.5, "{e:?}");
+        assert!(e.median_rot_deg < 1.5, "{e:?}");
+        assert!(e.median_rel_rot_deg < 0.05, "{e:?}");
+    }
 
     #[test]
     fn view_zero_looks_forward_and_view_rotations_turn_right() {
