@@ -686,8 +686,8 @@ pub fn pose_errors(
     let mut rel: Vec<f32> = Vec::new();
     for (i, (ei, ri)) in pairs.iter().enumerate() {
         for (ej, rj) in &pairs[i + 1..] {
-            let est = ei.pose.unwrap().world_from_camera.transpose()
-                * ej.pose.unwrap().world_from_camera;
+            let est =
+                ei.pose.unwrap().world_from_camera.transpose() * ej.pose.unwrap().world_from_camera;
             let truth = ri.world_from_camera.transpose() * rj.world_from_camera;
             rel.push(angle(truth.transpose() * est));
         }

@@ -117,7 +117,7 @@ pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, min_px: usize) -
 }
 
 /// Matches the lights of two probes (at `pa` and `pb`) whose rays nearly meet (gap
-/// below `max_gap` metres, in front of both) or are parallel (sources at infinity),
+/// below `max_gap`, in the poses' unit, in front of both) or are parallel (sources at infinity),
 /// best pairs first, each light used once.
 pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -> Vec<PlacedLight> {
     let mut pairs = Vec::new();

@@ -41,8 +41,13 @@ pub struct FusionParams {
     /// Place lights seen by two probes in 3-D and give clipped regions the power
     /// those lights have at the frame's position.
     pub place_lights: bool,
-    /// Largest gap in metres between two probes' rays for them to be one light.
-    pub max_gap_m: f32,
+    /// Largest gap between two probes' rays for them to be one light, as a
+    /// fraction of the distance between the probes: free of the poses' unit
+    /// (localized poses are known only up to scale). Measured: 0.10 and 0.15 give
+    /// the same outputs as an absolute 0.25 m on the three evaluation scenes
+    /// (probes 1.6 to 5 m apart).
+    #[serde(default = "default_gap_rel")]
+    pub max_gap_rel: f32,
     /// Largest ratio between the intensities (power x squared distance) two probes
     /// see of a placed light; beyond it the light is not placed (the estimate's
     /// power is used). Measured on flat: without the check, a window seen whole by
@@ -55,6 +60,10 @@ pub struct FusionParams {
     pub sdr_label_cost: f32,
     /// Clipped pixels from which [`Transfer::Auto`] treats a region as resolved.
     pub resolved_px: usize,
+}
+
+fn default_gap_rel() -> f32 {
+    0.1
 }
 
 fn default_intensity_ratio() -> f64 {
@@ -88,7 +97,7 @@ impl Default for FusionParams {
             feather_px: 0,
             transfer: Transfer::Power,
             place_lights: true,
-            max_gap_m: 0.25,
+            max_gap_rel: default_gap_rel(),
             max_intensity_ratio: default_intensity_ratio(),
             sdr_label_cost: 0.05,
             resolved_px: 64,

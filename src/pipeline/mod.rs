@@ -500,7 +500,7 @@ pub fn predict_frame(
                 a.pose.position,
                 &lb,
                 b.pose.position,
-                params.fusion.max_gap_m,
+                params.fusion.max_gap_rel * a.pose.position.distance(b.pose.position),
             ) {
                 // Two probes that disagree on the light's intensity (power times
                 // squared distance) saw different parts of it or different lights:
