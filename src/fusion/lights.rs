@@ -87,15 +87,23 @@ impl PlacedLight {
 }
 
 /// Bright regions (luminance above `threshold`) of a probe taken with `pose`, with at
-/// least `min_px` pixels.
-pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, min_px: usize) -> Vec<Light> {
+/// least `min_px` pixels; regions closer than `join_deg` degrees count as one.
+pub fn find_lights(
+    img: &HdrImage,
+    pose: &Pose,
+    threshold: f32,
+    min_px: usize,
+    join_deg: f32,
+) -> Vec<Light> {
     let (w, h) = (img.width(), img.height());
     let sa = row_solid_angles(w, h);
     let bright: Vec<bool> = img.pixels().map(|p| luminance(p) > threshold).collect();
-    let (lab, n) = components(&bright, w, h);
+    let r = (w as f32 * join_deg.max(0.0) / 360.0).round() as usize;
+    let joined = super::dilate(&bright, w, h, r);
+    let (lab, n) = components(&joined, w, h);
     let mut acc = vec![(Vec3::ZERO, 0.0f64, 0usize, 0.0f64); n];
     for (i, &l) in lab.iter().enumerate() {
-        if l == u32::MAX {
+        if l == u32::MAX || !bright[i] {
             continue;
         }
         let (x, y) = (i % w, i / w);
@@ -216,6 +224,34 @@ mod tests {
         );
         let sun = placed.iter().find(|p| p.at_infinity).unwrap();
         assert!((sun.seen_from(frame).1 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn fragments_of_one_lamp_closer_than_the_join_angle_are_one_light() {
+        // Two bright patches two pixels apart (one dark column between them) on a
+        // 512-wide panorama (0.7 degrees per pixel).
+        let (w, h) = (512, 256);
+        let img = HdrImage::from_fn(w, h, |x, y| {
+            let lit =
+                (100..=102).contains(&y) && ((200..=203).contains(&x) || (205..=208).contains(&x));
+            if lit {
+                [10.0, 10.0, 10.0]
+            } else {
+                [0.1, 0.1, 0.1]
+            }
+        });
+        let pose = Pose {
+            position: Vec3::ZERO,
+            world_from_camera: glam::Mat3::IDENTITY,
+        };
+        let apart = find_lights(&img, &pose, 1.0, 3, 0.0);
+        assert_eq!(apart.len(), 2);
+        let joined = find_lights(&img, &pose, 1.0, 3, 0.7);
+        assert_eq!(joined.len(), 1);
+        // Joining adds no power and no solid angle: only the bright pixels count.
+        let sum = |v: &[Light], f: fn(&Light) -> f64| v.iter().map(f).sum::<f64>();
+        assert!((sum(&joined, |l| l.power) - sum(&apart, |l| l.power)).abs() < 1e-9);
+        assert!((sum(&joined, |l| l.solid_angle) - sum(&apart, |l| l.solid_angle)).abs() < 1e-12);
     }
 
     #[test]

@@ -492,8 +492,20 @@ pub fn predict_frame(
         let mut placed = Vec::new();
         if params.fusion.place_lights && used.len() >= 2 {
             let (a, b) = (get_probe(used[0])?.0, get_probe(used[1])?.0);
-            let la = find_lights(&a.image, &a.pose, white, params.fusion.min_core_px);
-            let lb = find_lights(&b.image, &b.pose, white, params.fusion.min_core_px);
+            let la = find_lights(
+                &a.image,
+                &a.pose,
+                white,
+                params.fusion.min_core_px,
+                params.fusion.light_join_deg,
+            );
+            let lb = find_lights(
+                &b.image,
+                &b.pose,
+                white,
+                params.fusion.min_core_px,
+                params.fusion.light_join_deg,
+            );
             let to_frame = frame.pose.world_from_camera.transpose();
             for l in triangulate(
                 &la,
