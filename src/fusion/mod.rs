@@ -183,23 +183,27 @@ pub fn clip_mask(sdr: &SdrImage, clip_code: u8, min_core: usize, margin: usize) 
     dilate(&m, w, h, margin)
 }
 
+/// The 4-neighbours of pixel `p` of a `w x h` panorama, wrapping across the seam;
+/// `usize::MAX` for those beyond the top or bottom row.
+fn neighbours4(p: usize, w: usize, h: usize) -> [usize; 4] {
+    let (x, y) = (p % w, p / w);
+    let mut nb = [usize::MAX; 4];
+    nb[0] = y * w + (x + w - 1) % w;
+    nb[1] = y * w + (x + 1) % w;
+    if y > 0 {
+        nb[2] = p - w;
+    }
+    if y + 1 < h {
+        nb[3] = p + w;
+    }
+    nb
+}
+
 /// A mask grown by `steps` pixels (4-neighbours, wrapping across the seam). Work
 /// grows with the mask's rim and what is added, not with the image.
 pub fn dilate(mask: &[bool], w: usize, h: usize, steps: usize) -> Vec<bool> {
     let mut m = mask.to_vec();
-    let neighbours = |p: usize| {
-        let (x, y) = (p % w, p / w);
-        let mut nb = [usize::MAX; 4];
-        nb[0] = y * w + (x + w - 1) % w;
-        nb[1] = y * w + (x + 1) % w;
-        if y > 0 {
-            nb[2] = p - w;
-        }
-        if y + 1 < h {
-            nb[3] = p + w;
-        }
-        nb
-    };
+    let neighbours = |p: usize| neighbours4(p, w, h);
     if steps == 0 {
         return m;
     }
@@ -239,17 +243,7 @@ pub fn components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, usize) {
         lab[start] = n;
         stack.push(start);
         while let Some(p) = stack.pop() {
-            let (x, y) = (p % w, p / w);
-            let mut nb = [usize::MAX; 4];
-            nb[0] = y * w + (x + w - 1) % w;
-            nb[1] = y * w + (x + 1) % w;
-            if y > 0 {
-                nb[2] = p - w;
-            }
-            if y + 1 < h {
-                nb[3] = p + w;
-            }
-            for q in nb {
+            for q in neighbours4(p, w, h) {
                 if q != usize::MAX && mask[q] && lab[q] == u32::MAX {
                     lab[q] = n;
                     stack.push(q);
