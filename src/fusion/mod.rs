@@ -353,15 +353,14 @@ pub fn fuse_with_lights(
             best.0
         })
         .collect();
-    let owner: Vec<u32> = (0..w * h)
-        .map(|i| {
-            if elab[i] != u32::MAX {
-                light_owner[elab[i] as usize]
-            } else {
-                u32::MAX
-            }
-        })
-        .collect();
+    // The region a pixel's light is attributed to (u32::MAX for none).
+    let owner = |i: usize| {
+        if elab[i] != u32::MAX {
+            light_owner[elab[i] as usize]
+        } else {
+            u32::MAX
+        }
+    };
     // Per region: the estimate's power above the white point in its neighbourhood,
     // and the centroids of the estimate's pixels above the white point and of the
     // region (relative to a reference pixel so regions across the seam average
@@ -387,8 +386,8 @@ pub fn fuse_with_lights(
     };
     for i in 0..w * h {
         let (x, y) = (i % w, i / w);
-        if owner[i] != u32::MAX {
-            let o = owner[i] as usize;
+        if owner(i) != u32::MAX {
+            let o = owner(i) as usize;
             let l = luminance(estimate.get(x, y)) as f64;
             let m = (l - white as f64).max(0.0) * sa[y] as f64;
             est_power[o] += m;
@@ -528,7 +527,6 @@ pub fn fuse_with_lights(
     // following the estimate's colour ratio to the brightest measured one (never
     // below the clipped value). Margin pixels stay as measured.
     let mut partial_power = vec![0.0f64; n];
-    let mut partial_px_power = vec![0.0f64; w * h];
     // The colour ratio of a clipped channel to a measured one comes from the
     // estimate's pixels of the region that are bright in that channel (the median
     // over them): a sunlit wall or a warm lamp has one colour, and an estimate a
@@ -585,9 +583,7 @@ pub fn fuse_with_lights(
                 v[k] = (s[r] * q).max(s[k]);
             }
         }
-        let pw = (luminance(v) as f64 - white as f64).max(0.0) * sa[y] as f64;
-        partial_px_power[i] = pw;
-        partial_power[o] += pw;
+        partial_power[o] += (luminance(v) as f64 - white as f64).max(0.0) * sa[y] as f64;
         out.set(x, y, v);
     }
     // A region with light left to place but no fully clipped pixel (a light every
@@ -621,7 +617,9 @@ pub fn fuse_with_lights(
             && (!has_bright_partial[o] || luminance(shifted(i)) > white)
         {
             kinds[i] = Kind::Full;
-            partial_power[o] -= partial_px_power[i];
+            // What the pixel carried as a partial pixel (its value in `out`).
+            let v = out.get(i % w, i / w);
+            partial_power[o] -= (luminance(v) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
         }
         if kinds[i] == Kind::Full {
             full_area[o] += sa[i / w] as f64;
