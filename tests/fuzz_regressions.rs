@@ -12,12 +12,12 @@
 use lumiprobe::capture::debevec::ResponseCurve;
 use lumiprobe::capture::exif::parse_jpeg;
 use lumiprobe::capture::localize::parse_images_txt;
-use lumiprobe::image::io::{decode_hdr, decode_sdr, exr, ldr, pfm, rgbe, Format, Limits};
+use lumiprobe::image::io::{decode_hdr, decode_sdr, exr, ldr, pfm, rgbe, Limits};
 use lumiprobe::render::model::{LoadLimits, Model};
 use lumiprobe::scene::manifest::Manifest;
 use lumiprobe::scene::Scene;
 use lumiprobe::tonemap::Response;
-use lumiprobe::{Error, SdrImage};
+use lumiprobe::Error;
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 
@@ -89,43 +89,9 @@ fn expect_named<T>(r: lumiprobe::Result<T>, name: &Path, input: &Path) -> Result
     }
 }
 
-/// A folder with one file of each kind a manifest can point at (as the
-/// `manifest` target has).
-fn capture_dir(root: &Path) -> PathBuf {
-    let d = root.join("capture");
-    for f in [
-        "probes/p0.exr",
-        "probes/p1/a.jpg",
-        "probes/p1/b.jpg",
-        "path/frame_0000.jpg",
-        "path/frame_0001.jpg",
-        "walk.mp4",
-        "poses.json",
-        "curve.json",
-    ] {
-        let p = d.join(f);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::write(&p, b"x").unwrap();
-    }
-    d
-}
-
-/// The folder the `gltf` target resolves relative URIs in.
-fn model_dir(root: &Path) -> PathBuf {
-    let d = root.join("model");
-    std::fs::create_dir_all(&d).unwrap();
-    let mut buf = Vec::new();
-    for v in [0f32, 0., 0., 1., 0., 0., 0., 1., 0.] {
-        buf.extend_from_slice(&v.to_le_bytes());
-    }
-    for i in [0u16, 1, 2, 0, 0, 0] {
-        buf.extend_from_slice(&i.to_le_bytes());
-    }
-    std::fs::write(d.join("buf.bin"), &buf).unwrap();
-    let tex = SdrImage::from_vec(2, 2, (0..12).map(|i| i * 20).collect()).unwrap();
-    lumiprobe::image::io::write_sdr(&d.join("tex.png"), &tex).unwrap();
-    d
-}
+#[path = "../fuzz/src/fixtures.rs"]
+mod fixtures;
+use fixtures::{capture_dir, ldr_format, model_dir};
 
 /// Feeds `data` to the reader of fuzz target `target`, as the target does.
 fn replay(target: &str, data: &[u8], input: &Path, scratch: &Path) -> Result<(), String> {
@@ -145,16 +111,7 @@ fn replay(target: &str, data: &[u8], input: &Path, scratch: &Path) -> Result<(),
             expect_named(r, name, input)
         }
         "ldr" => {
-            let format = match Format::sniff(data) {
-                Some(f @ (Format::Png | Format::Jpeg)) => f,
-                _ if data.first().is_some_and(|b| b & 1 == 1) => Format::Jpeg,
-                _ => Format::Png,
-            };
-            let name = Path::new(if format == Format::Png {
-                "fuzz.png"
-            } else {
-                "fuzz.jpg"
-            });
+            let (format, name) = ldr_format(data);
             expect_named(ldr::decode(data, name, format, &IMAGE_LIMITS), name, input)
         }
         "image_any" => {

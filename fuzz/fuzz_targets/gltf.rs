@@ -5,28 +5,13 @@
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use lumiprobe::render::model::{LoadLimits, Model};
-use lumiprobe::SdrImage;
-use lumiprobe_fuzz::scratch;
+use lumiprobe_fuzz::{fixtures, scratch};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 fn model_dir() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let d = scratch().join("model");
-        std::fs::create_dir_all(&d).unwrap();
-        let mut buf = Vec::new();
-        for v in [0f32, 0., 0., 1., 0., 0., 0., 1., 0.] {
-            buf.extend_from_slice(&v.to_le_bytes());
-        }
-        for i in [0u16, 1, 2, 0, 0, 0] {
-            buf.extend_from_slice(&i.to_le_bytes());
-        }
-        std::fs::write(d.join("buf.bin"), &buf).unwrap();
-        let tex = SdrImage::from_vec(2, 2, (0..12).map(|i| i * 20).collect()).unwrap();
-        lumiprobe::image::io::write_sdr(&d.join("tex.png"), &tex).unwrap();
-        d
-    })
+    DIR.get_or_init(|| fixtures::model_dir(scratch()))
 }
 
 fuzz_target!(|data: &[u8]| {

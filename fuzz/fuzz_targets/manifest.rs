@@ -3,33 +3,14 @@
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use lumiprobe::scene::manifest::{Manifest, ResponseChoice};
-use lumiprobe_fuzz::{assert_names_file, scratch};
+use lumiprobe_fuzz::{assert_names_file, fixtures, scratch};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-/// `<scratch>/capture` with probes/p0.exr, probes/p1/{a,b}.jpg,
-/// path/frame_000{0,1}.jpg, walk.mp4, poses.json and curve.json (contents do
-/// not matter: the parser only checks that they exist).
+/// The capture folder of [`fixtures::capture_dir`], made once.
 fn capture() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let d = scratch().join("capture");
-        for f in [
-            "probes/p0.exr",
-            "probes/p1/a.jpg",
-            "probes/p1/b.jpg",
-            "path/frame_0000.jpg",
-            "path/frame_0001.jpg",
-            "walk.mp4",
-            "poses.json",
-            "curve.json",
-        ] {
-            let p = d.join(f);
-            std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-            std::fs::write(&p, b"x").unwrap();
-        }
-        d
-    })
+    DIR.get_or_init(|| fixtures::capture_dir(scratch()))
 }
 
 fuzz_target!(|data: &[u8]| {

@@ -2,6 +2,8 @@
 //! readers' configured limits bound their memory), a per-process scratch folder,
 //! and the checks every reader must pass on arbitrary input.
 
+pub mod fixtures;
+
 use lumiprobe::image::io::Limits;
 use lumiprobe::{Error, HdrImage, SdrImage};
 use std::alloc::{GlobalAlloc, Layout, System};
