@@ -580,6 +580,20 @@ fn area_resample(
     out
 }
 
+/// `sources` with their images replaced by `images` (already in the frame's
+/// orientation), as [`Source`]s.
+fn with_images<'a>(sources: &[RotatedSource], images: &[&'a HdrImage]) -> Vec<Source<'a>> {
+    sources
+        .iter()
+        .zip(images)
+        .map(|(s, &image)| Source {
+            name: s.name.clone(),
+            image,
+            distance_m: s.distance_m,
+        })
+        .collect()
+}
+
 /// The flow method on sources seen through rotations, for frames of any size.
 /// Up to [`FlowMethodParams::work_width`] this is [`flow_frame`] on the sources
 /// rotated into the frame's orientation. A wider frame, its radiance and the
@@ -620,15 +634,8 @@ pub fn flow_frame_scaled(
                 }
             })
             .collect();
-        let plain: Vec<Source> = sources
-            .iter()
-            .zip(&rotated)
-            .map(|(s, img)| Source {
-                name: s.name.clone(),
-                image: img,
-                distance_m: s.distance_m,
-            })
-            .collect();
+        let images: Vec<&HdrImage> = rotated.iter().map(|c| c.as_ref()).collect();
+        let plain = with_images(sources, &images);
         return flow_frame(sdr, sdr_linear, &plain, response, gain, p);
     }
     let t = Instant::now();
@@ -666,15 +673,7 @@ pub fn flow_frame_scaled(
             crate::sphere::rotate(&reduced, s.rotation, ws, hs)
         })
         .collect();
-    let plain: Vec<Source> = sources
-        .iter()
-        .zip(&small_src)
-        .map(|(s, img)| Source {
-            name: s.name.clone(),
-            image: img,
-            distance_m: s.distance_m,
-        })
-        .collect();
+    let plain = with_images(sources, &small_src.iter().collect::<Vec<_>>());
     let resample_ms = ms(t);
     // DIS works in pixels: at the working size its finest level moves down by
     // log2 k, so the flow stays as fine as at full size (at 2048 x 1024 from
