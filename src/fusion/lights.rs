@@ -3,9 +3,9 @@
 //! position (radiance is invariant along rays; a small source's solid angle scales
 //! with the inverse square of its distance).
 
-use super::components;
+use super::{components, FrameLight, FusionParams};
 use crate::image::{luminance, HdrImage};
-use crate::scene::Pose;
+use crate::scene::{distance_m, Pose};
 use crate::sphere::{pixel_to_dir, row_solid_angles};
 use glam::Vec3;
 
@@ -186,6 +186,49 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
     out
 }
 
+/// The lights two probes (image and pose each) both see, placed in 3-D and carried
+/// to a frame with pose `frame`: direction in the frame's camera axes, power at
+/// its position and the brightest mean radiance a probe saw, for
+/// [`super::fuse_with_lights`]. `white` is the radiance at which the frame clips.
+pub fn lights_at_frame(
+    a: (&HdrImage, &Pose),
+    b: (&HdrImage, &Pose),
+    frame: &Pose,
+    white: f32,
+    p: &FusionParams,
+) -> Vec<FrameLight> {
+    let find = |img: &HdrImage, pose: &Pose| {
+        find_lights(img, pose, white, p.min_core_px, p.light_join_deg)
+    };
+    let (la, lb) = (find(a.0, a.1), find(b.0, b.1));
+    let (pa, pb) = (a.1.position, b.1.position);
+    let to_frame = frame.world_from_camera.transpose();
+    let mut placed = Vec::new();
+    for l in triangulate(&la, pa, &lb, pb, p.max_gap_rel * pa.distance(pb)) {
+        // Two probes that disagree on the light's intensity (power times squared
+        // distance) saw different parts of it or different lights: the
+        // inverse-square model does not hold, the estimate decides.
+        if !l.consistent(p.max_intensity_ratio) {
+            continue;
+        }
+        let (d, mut pw) = l.seen_from(frame.position);
+        // A frame taken at a probe (within 1 mm) sees the light exactly as that
+        // probe did: no extrapolation from the other one.
+        let at = |q: Vec3| distance_m(q, frame.position) < 1e-3;
+        if at(pa) {
+            pw = l.seen[0].0;
+        } else if at(pb) {
+            pw = l.seen[1].0;
+        }
+        placed.push(FrameLight {
+            dir: to_frame * d,
+            power: pw,
+            radiance: l.radiance[0].max(l.radiance[1]),
+        });
+    }
+    placed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -224,6 +267,66 @@ mod tests {
         );
         let sun = placed.iter().find(|p| p.at_infinity).unwrap();
         assert!((sun.seen_from(frame).1 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn lights_at_a_frame_do_not_depend_on_the_poses_unit() {
+        // A lamp seen by two probes, drawn as a bright disc of 4 degrees around
+        // its direction from each; the same walk in metres and in centimetres.
+        let (w, h) = (256, 128);
+        let lamp = Vec3::new(1.0, 0.4, 2.5);
+        // Probe b sees the lamp 10 cm higher (the centroids of an extended lamp
+        // seen from two sides): the rays miss by about 0.1 m, within a tenth of
+        // the 2 m between the probes, but 10 units once the walk is in cm.
+        let probe = |at: Vec3, lamp: Vec3| {
+            let to = (lamp - at).normalize();
+            let img = HdrImage::from_fn(w, h, |x, y| {
+                if pixel_to_dir(x, y, w, h).dot(to) > 4f32.to_radians().cos() {
+                    [50.0, 40.0, 30.0]
+                } else {
+                    [0.2, 0.2, 0.2]
+                }
+            });
+            let pose = Pose {
+                position: at,
+                world_from_camera: glam::Mat3::IDENTITY,
+            };
+            (img, pose)
+        };
+        let a = probe(Vec3::new(0.0, 0.0, 1.5), lamp);
+        let b = probe(Vec3::new(2.0, 0.0, 1.5), lamp + Vec3::new(0.0, 0.0, 0.1));
+        let frame = Pose {
+            position: Vec3::new(0.8, 0.3, 1.5),
+            world_from_camera: glam::Mat3::IDENTITY,
+        };
+        let p = FusionParams::default();
+        let metres = lights_at_frame((&a.0, &a.1), (&b.0, &b.1), &frame, 1.0, &p);
+        assert_eq!(metres.len(), 1);
+        let scaled = |q: &Pose| Pose {
+            position: q.position * 100.0,
+            ..*q
+        };
+        let (sa, sb, sf) = (scaled(&a.1), scaled(&b.1), scaled(&frame));
+        let centimetres = lights_at_frame((&a.0, &sa), (&b.0, &sb), &sf, 1.0, &p);
+        assert_eq!(centimetres.len(), 1);
+        let (m, d) = (metres[0], centimetres[0]);
+        assert!(m.dir.dot(d.dir) > 0.99999);
+        assert!(
+            (m.power - d.power).abs() < 1e-4 * m.power,
+            "{} vs {}",
+            m.power,
+            d.power
+        );
+        assert!((m.radiance - d.radiance).abs() < 1e-9 * m.radiance);
+        // Nearer the lamp than either probe: more power than either saw.
+        assert!(m.power > metres_power_seen(&a.0, &a.1) && m.power > metres_power_seen(&b.0, &b.1));
+    }
+
+    fn metres_power_seen(img: &HdrImage, pose: &Pose) -> f64 {
+        find_lights(img, pose, 1.0, 3, 0.7)
+            .iter()
+            .map(|l| l.power)
+            .sum()
     }
 
     #[test]

@@ -13,7 +13,7 @@ pub mod sweep;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource};
-use crate::fusion::lights::{find_lights, triangulate};
+use crate::fusion::lights::lights_at_frame;
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{distance_m, Frame, Scene};
@@ -492,49 +492,13 @@ pub fn predict_frame(
         let mut placed = Vec::new();
         if params.fusion.place_lights && used.len() >= 2 {
             let (a, b) = (get_probe(used[0])?.0, get_probe(used[1])?.0);
-            let la = find_lights(
-                &a.image,
-                &a.pose,
+            placed = lights_at_frame(
+                (&a.image, &a.pose),
+                (&b.image, &b.pose),
+                &frame.pose,
                 white,
-                params.fusion.min_core_px,
-                params.fusion.light_join_deg,
+                &params.fusion,
             );
-            let lb = find_lights(
-                &b.image,
-                &b.pose,
-                white,
-                params.fusion.min_core_px,
-                params.fusion.light_join_deg,
-            );
-            let to_frame = frame.pose.world_from_camera.transpose();
-            for l in triangulate(
-                &la,
-                a.pose.position,
-                &lb,
-                b.pose.position,
-                params.fusion.max_gap_rel * a.pose.position.distance(b.pose.position),
-            ) {
-                // Two probes that disagree on the light's intensity (power times
-                // squared distance) saw different parts of it or different lights:
-                // the inverse-square model does not hold, the estimate decides.
-                if !l.consistent(params.fusion.max_intensity_ratio) {
-                    continue;
-                }
-                let (d, mut pw) = l.seen_from(frame.pose.position);
-                // A frame taken at a probe (within 1 mm) sees the light exactly as
-                // that probe did: no extrapolation from the other one.
-                let at = |q: glam::Vec3| distance_m(q, frame.pose.position) < 1e-3;
-                if at(a.pose.position) {
-                    pw = l.seen[0].0;
-                } else if at(b.pose.position) {
-                    pw = l.seen[1].0;
-                }
-                placed.push(crate::fusion::FrameLight {
-                    dir: to_frame * d,
-                    power: pw,
-                    radiance: l.radiance[0].max(l.radiance[1]),
-                });
-            }
         }
         let (img, mut rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
         rep.time_ms = t.elapsed().as_secs_f64() * 1e3;
