@@ -1,16 +1,18 @@
 //! Light sources as sources: bright regions of two probes, matched by triangulation,
 //! placed in 3-D and carried to a frame with the power they have at the frame's
 //! position (radiance is invariant along rays; a small source's solid angle scales
-//! with the inverse square of its distance).
+//! with the inverse square of its distance). Where the two probes agree on the
+//! surface the light lies on, it is also carried pixel by pixel through that
+//! surface ([`LightView`]).
 
 use super::{components, FrameLight, FusionParams};
 use crate::image::{luminance, HdrImage};
 use crate::scene::{distance_m, Pose};
-use crate::sphere::{pixel_to_dir, row_solid_angles};
+use crate::sphere::{pixel_to_dir, row_solid_angles, sample_dir};
 use glam::Vec3;
 
 /// A bright region of one panorama.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Light {
     /// Power-weighted mean direction, world axes, unit length.
     pub dir: Vec3,
@@ -18,6 +20,8 @@ pub struct Light {
     pub power: f64,
     /// Solid angle of the region in steradians.
     pub solid_angle: f64,
+    /// Indices (row-major) of its pixels above the threshold.
+    pub pixels: Vec<u32>,
 }
 
 /// A light seen by two probes and placed in the world.
@@ -35,6 +39,8 @@ pub struct PlacedLight {
     /// angle). Radiance does not change along rays, so no part of the source can
     /// look brighter than this from anywhere, unless a probe did not resolve it.
     pub radiance: [f64; 2],
+    /// Indices of the two probes' [`Light`]s it was placed from.
+    pub from: (usize, usize),
 }
 
 impl Light {
@@ -101,7 +107,7 @@ pub fn find_lights(
     let r = (w as f32 * join_deg.max(0.0) / 360.0).round() as usize;
     let joined = super::dilate(&bright, w, h, r);
     let (lab, n) = components(&joined, w, h);
-    let mut acc = vec![(Vec3::ZERO, 0.0f64, 0usize, 0.0f64); n];
+    let mut acc = vec![(Vec3::ZERO, 0.0f64, Vec::new(), 0.0f64); n];
     for (i, &l) in lab.iter().enumerate() {
         if l == u32::MAX || !bright[i] {
             continue;
@@ -111,15 +117,16 @@ pub fn find_lights(
         let a = &mut acc[l as usize];
         a.0 += pose.world_from_camera * pixel_to_dir(x, y, w, h) * m as f32;
         a.1 += m;
-        a.2 += 1;
+        a.2.push(i as u32);
         a.3 += sa[y] as f64;
     }
     acc.into_iter()
-        .filter(|a| a.2 >= min_px && a.1 > 0.0 && a.0.length() > 0.0)
+        .filter(|a| a.2.len() >= min_px && a.1 > 0.0 && a.0.length() > 0.0)
         .map(|a| Light {
             dir: a.0.normalize(),
             power: a.1,
             solid_angle: a.3,
+            pixels: a.2,
         })
         .collect()
 }
@@ -173,6 +180,7 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
                 dir: Vec3::ZERO,
                 seen: [(a[i].power, x.distance(pa)), (b[j].power, x.distance(pb))],
                 radiance,
+                from: (i, j),
             },
             None => PlacedLight {
                 position: Vec3::ZERO,
@@ -180,23 +188,189 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
                 dir: (a[i].dir + b[j].dir).normalize(),
                 seen: [(a[i].power, 1.0), (b[j].power, 1.0)],
                 radiance,
+                from: (i, j),
             },
         });
     }
     out
 }
 
+/// The surface a light lies on: what lets the probes' pixels of a light be carried
+/// to a frame pixel by pixel (radiance is invariant along rays), not only its power.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Surface {
+    /// A plane through `point` with unit `normal`: a ceiling panel and the ceiling
+    /// it lights, a window pane, a sunlit patch of floor.
+    Plane {
+        /// A point of the plane (the triangulated light).
+        point: Vec3,
+        /// Unit normal.
+        normal: Vec3,
+    },
+    /// Far away, seen in the same direction from everywhere: the sun, the sky.
+    Infinity,
+}
+
+impl Surface {
+    /// The direction in which a camera at `eye` sees the point where the ray from
+    /// `origin` along `dir` meets the surface; `None` when the ray misses it (runs
+    /// parallel to the plane or meets it behind `origin`).
+    pub fn seen_from(&self, origin: Vec3, dir: Vec3, eye: Vec3) -> Option<Vec3> {
+        match *self {
+            Surface::Infinity => Some(dir),
+            Surface::Plane { point, normal } => {
+                let along = normal.dot(dir);
+                if along.abs() < 1e-3 {
+                    return None;
+                }
+                let t = normal.dot(point - origin) / along;
+                if !(t.is_finite() && t > 0.0) {
+                    return None;
+                }
+                let v = origin + dir * t - eye;
+                let d = v.length();
+                (d > 0.0 && d.is_finite()).then(|| v / d)
+            }
+        }
+    }
+}
+
+/// A panorama and the pose it was taken with.
+pub type View<'a> = (&'a HdrImage, &'a Pose);
+
+/// Largest log-luminance difference one pixel counts for in [`disagreement`] (a
+/// pixel that does not reach the surface counts this much).
+const MAX_LOG_DIFF: f64 = 3.0;
+
+/// How badly two probes agree that `pixels` of `src` lie on `surface`: the mean
+/// (solid-angle weighted) absolute log-luminance difference between each pixel and
+/// where `dst` sees the same surface point.
+fn disagreement(src: View, pixels: &[u32], dst: View, surface: &Surface) -> f64 {
+    let (img, pose) = src;
+    let (w, h) = (img.width(), img.height());
+    let to_dst = dst.1.world_from_camera.transpose();
+    // At most about 2000 pixels: the fit needs the light's shape, not every pixel.
+    let step = (pixels.len() / 2000).max(1);
+    let mut errs: Vec<f64> = pixels
+        .iter()
+        .step_by(step)
+        .map(|&i| {
+            let (x, y) = (i as usize % w, i as usize / w);
+            let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+            let here = luminance(img.get(x, y)).max(1e-6) as f64;
+            match surface.seen_from(pose.position, d, dst.1.position) {
+                Some(v) => {
+                    let there = luminance(sample_dir(dst.0, to_dst * v)).max(1e-6) as f64;
+                    (here.ln() - there.ln()).abs().min(MAX_LOG_DIFF)
+                }
+                None => MAX_LOG_DIFF,
+            }
+        })
+        .collect();
+    if errs.is_empty() {
+        return MAX_LOG_DIFF;
+    }
+    // The median: the pixels along a light's edge disagree under any surface (a
+    // sharp edge sampled between pixels), its inside agrees only under the right one.
+    let mid = errs.len() / 2;
+    *errs.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The surface through `point` on which two probes' views of a light (`la` seen
+/// by `a`, `lb` by `b`) agree best, with its disagreement (mean absolute
+/// log-luminance difference). Candidates: the plane level with the probes' horizon
+/// (ceilings, floors), the upright plane facing the probes (walls, windows), the
+/// plane facing them (anything tilted), and infinity.
+pub fn fit_surface(a: View, la: &Light, b: View, lb: &Light, point: Vec3) -> (Surface, f64) {
+    let up =
+        (a.1.world_from_camera * Vec3::Y + b.1.world_from_camera * Vec3::Y).normalize_or_zero();
+    let to = 0.5 * (a.1.position + b.1.position) - point;
+    let upright = (to - up * to.dot(up)).normalize_or_zero();
+    // The triangulated point is the meeting of the two probes' power-weighted
+    // centres, which for an extended light lie a little off its surface: each
+    // plane is also tried shifted along its normal, by up to 15% of the light's
+    // distance.
+    let reach = 0.15 * to.length();
+    let mut candidates = vec![Surface::Infinity];
+    for normal in [up, upright, to.normalize_or_zero()] {
+        if normal.length_squared() > 0.5 {
+            for k in -6..=6 {
+                let point = point + normal * (reach * k as f32 / 6.0);
+                candidates.push(Surface::Plane { point, normal });
+            }
+        }
+    }
+    candidates
+        .into_iter()
+        .map(|s| {
+            // From the probe that sees the light smaller into the one that sees it
+            // larger: each of its pixels lands on well-sampled pixels of the other
+            // (the other way, a light seen large would be compared against a
+            // sliver of a few pixels).
+            let e = if la.pixels.len() <= lb.pixels.len() {
+                disagreement(a, &la.pixels, b, &s)
+            } else {
+                disagreement(b, &lb.pixels, a, &s)
+            };
+            (s, e)
+        })
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .expect("infinity is always a candidate")
+}
+
+/// A placed light as a frame sees it through its [`Surface`], pixel by pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct LightView<'a> {
+    /// The surface the light lies on.
+    pub surface: Surface,
+    /// The two probes that saw it.
+    pub probes: [View<'a>; 2],
+    /// The frame's pose.
+    pub frame: Pose,
+}
+
+impl LightView<'_> {
+    /// Radiance the frame sees in direction `d` (its camera axes) through the
+    /// light's surface: the probes' samples of the same surface point, the probe
+    /// that sees it from nearest the frame's viewpoint weighing most (a window's sky
+    /// or a glossy patch changes with the viewpoint). `None` when the ray misses
+    /// the surface.
+    pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        let dw = self.frame.world_from_camera * d;
+        let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
+        for (img, pose) in self.probes {
+            let v = self
+                .surface
+                .seen_from(self.frame.position, dw, pose.position)?;
+            let wt = match self.surface {
+                // The same direction from both: the nearer probe weighs more.
+                Surface::Infinity => {
+                    1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3)
+                }
+                // The angle between the probe's and the frame's rays to the point.
+                Surface::Plane { .. } => 1.0 / (v.dot(dw).clamp(-1.0, 1.0).acos() as f64 + 0.02),
+            };
+            let c = sample_dir(img, pose.world_from_camera.transpose() * v);
+            for k in 0..3 {
+                sum[k] += wt * c[k] as f64;
+            }
+            norm += wt;
+        }
+        (norm > 0.0).then(|| sum.map(|s| (s / norm) as f32))
+    }
+}
+
 /// The lights two probes (image and pose each) both see, placed in 3-D and carried
 /// to a frame with pose `frame`: direction in the frame's camera axes, power at
 /// its position and the brightest mean radiance a probe saw, for
 /// [`super::fuse_with_lights`]. `white` is the radiance at which the frame clips.
-pub fn lights_at_frame(
-    a: (&HdrImage, &Pose),
-    b: (&HdrImage, &Pose),
+pub fn lights_at_frame<'a>(
+    a: View<'a>,
+    b: View<'a>,
     frame: &Pose,
     white: f32,
     p: &FusionParams,
-) -> Vec<FrameLight> {
+) -> Vec<FrameLight<'a>> {
     let find = |img: &HdrImage, pose: &Pose| {
         find_lights(img, pose, white, p.min_core_px, p.light_join_deg)
     };
@@ -220,17 +394,34 @@ pub fn lights_at_frame(
         } else if at(pb) {
             pw = l.seen[1].0;
         }
+        let (la, lb) = (&la[l.from.0], &lb[l.from.1]);
+        let view = (p.surface_px > 0 && la.pixels.len().min(lb.pixels.len()) >= p.surface_px)
+            .then(|| {
+                let point = if l.at_infinity {
+                    Vec3::ZERO
+                } else {
+                    l.position
+                };
+                fit_surface(a, la, b, lb, point)
+            })
+            .filter(|&(_, e)| e <= p.max_surface_err)
+            .map(|(surface, _)| LightView {
+                surface,
+                probes: [a, b],
+                frame: *frame,
+            });
         placed.push(FrameLight {
             dir: to_frame * d,
             power: pw,
             radiance: l.radiance[0].max(l.radiance[1]),
+            view,
         });
     }
     placed
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -241,18 +432,21 @@ mod tests {
             dir: (lamp - pa).normalize(),
             power: 2.0,
             solid_angle: 0.01,
+            ..Default::default()
         };
         let lb = Light {
             dir: (lamp - pb).normalize(),
             power: 2.0,
             solid_angle: 0.01,
+            ..Default::default()
         };
         let far = Light {
             dir: Vec3::new(0.0, -1.0, 0.0),
             power: 1.0,
             solid_angle: 0.01,
+            ..Default::default()
         };
-        let placed = triangulate(&[la, far], pa, &[far, lb], pb, 0.2);
+        let placed = triangulate(&[la, far.clone()], pa, &[far, lb], pb, 0.2);
         assert_eq!(placed.len(), 2);
         let lamp_light = placed.iter().find(|p| !p.at_infinity).unwrap();
         assert!(lamp_light.position.distance(lamp) < 1e-3);
@@ -365,6 +559,7 @@ mod tests {
             dir: Vec3::ZERO,
             seen: [(4.0, 1.0), (0.3, 3.0)],
             radiance: [1.0, 1.0],
+            from: (0, 0),
         };
         // Seen from 1.1 m: probe A (at 1 m) predicts 4 / 1.21, probe B (at 3 m)
         // 0.3 * 9 / 1.21.
@@ -387,11 +582,13 @@ mod tests {
                 dir: (lamp - pa).normalize(),
                 power: pw_a,
                 solid_angle: 0.01,
+                ..Default::default()
             };
             let lb = Light {
                 dir: (lamp - pb).normalize(),
                 power: pw_b,
                 solid_angle: 0.01,
+                ..Default::default()
             };
             triangulate(&[la], pa, &[lb], pb, 0.2)[0]
         };
@@ -403,5 +600,122 @@ mod tests {
         assert!(!light(0.0, 1.0).consistent(2.0));
         // Radiance is power over solid angle.
         assert!((light(1.0, 1.0).radiance[0] - 100.0).abs() < 1e-9);
+    }
+
+    /// A room whose ceiling (z = 2.6) holds a 0.6 m square panel centred at (1.0,
+    /// 0.5), lighting the ceiling around it; walls and floor dim.
+    pub(crate) fn ceiling_room(from: Vec3, d: Vec3) -> [f32; 3] {
+        if d.z <= 1e-4 {
+            return [0.3, 0.3, 0.3];
+        }
+        let x = from + d * ((2.6 - from.z) / d.z);
+        let (dx, dy) = (x.x - 1.0, x.y - 0.5);
+        if dx.abs() < 0.3 && dy.abs() < 0.3 {
+            return [60.0, 50.0, 40.0];
+        }
+        let g = 1.0 + 5.0 * (-(dx * dx + dy * dy) / 0.36).exp();
+        [g, 0.9 * g, 0.8 * g]
+    }
+
+    /// An upright camera (its y axis along world z) at `at`.
+    pub(crate) fn upright(at: Vec3) -> Pose {
+        Pose {
+            position: at,
+            world_from_camera: glam::Mat3::from_cols(Vec3::X, Vec3::Z, -Vec3::Y),
+        }
+    }
+
+    /// The panorama a camera with `pose` takes of [`ceiling_room`].
+    pub(crate) fn render(pose: &Pose, w: usize, h: usize) -> HdrImage {
+        HdrImage::from_fn(w, h, |x, y| {
+            ceiling_room(
+                pose.position,
+                pose.world_from_camera * pixel_to_dir(x, y, w, h),
+            )
+        })
+    }
+
+    #[test]
+    fn a_ray_meets_a_plane_where_the_geometry_says_and_infinity_everywhere() {
+        let ceiling = Surface::Plane {
+            point: Vec3::new(0.0, 0.0, 2.0),
+            normal: Vec3::Z,
+        };
+        let up = Vec3::new(0.6, 0.0, 0.8);
+        // From the origin the ray meets the ceiling at (1.5, 0, 2); seen from
+        // (1.5, 0, 0) that point is straight up.
+        let v = ceiling
+            .seen_from(Vec3::ZERO, up, Vec3::new(1.5, 0.0, 0.0))
+            .unwrap();
+        assert!(v.dot(Vec3::Z) > 0.99999, "{v}");
+        // Parallel to the plane, or meeting it behind the origin: no point.
+        assert!(ceiling.seen_from(Vec3::ZERO, Vec3::X, Vec3::ZERO).is_none());
+        assert!(ceiling.seen_from(Vec3::ZERO, -up, Vec3::ZERO).is_none());
+        // At infinity every camera sees it in the same direction.
+        assert_eq!(
+            Surface::Infinity.seen_from(Vec3::ZERO, up, Vec3::ONE),
+            Some(up)
+        );
+    }
+
+    #[test]
+    fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
+        let (w, h) = (256, 128);
+        let (a, b) = (
+            upright(Vec3::new(0.0, 0.0, 1.5)),
+            upright(Vec3::new(2.2, 0.3, 1.5)),
+        );
+        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let white = 2.0;
+        let (la, lb) = (
+            find_lights(&ia, &a, white, 3, 0.7),
+            find_lights(&ib, &b, white, 3, 0.7),
+        );
+        assert_eq!((la.len(), lb.len()), (1, 1));
+        let placed = triangulate(&la, a.position, &lb, b.position, 0.2);
+        assert_eq!(placed.len(), 1);
+        let point = placed[0].position;
+        assert!((point.z - 2.6).abs() < 0.1, "{point}");
+        let (surface, err) = fit_surface((&ia, &a), &la[0], (&ib, &b), &lb[0], point);
+        match surface {
+            Surface::Plane { normal, point } => {
+                assert!(normal.z.abs() > 0.999, "{normal}");
+                // The search along the normal finds the ceiling itself.
+                assert!((point.z - 2.6).abs() < 0.03, "{point}");
+            }
+            Surface::Infinity => panic!("the panel is not at infinity"),
+        }
+        assert!(err < 0.1, "{err}");
+        // A frame almost under the panel sees it far larger than either probe did.
+        let frame = upright(Vec3::new(1.1, 0.6, 1.5));
+        let truth = render(&frame, w, h);
+        let view = LightView {
+            surface,
+            probes: [(&ia, &a), (&ib, &b)],
+            frame,
+        };
+        let (mut close, mut lit) = (0, 0);
+        let (mut got, mut want) = (0.0f64, 0.0f64);
+        let sa = row_solid_angles(w, h);
+        for (y, &row_sa) in sa.iter().enumerate() {
+            for x in 0..w {
+                let t = luminance(truth.get(x, y));
+                if t <= white {
+                    continue;
+                }
+                lit += 1;
+                let r = view
+                    .radiance(pixel_to_dir(x, y, w, h))
+                    .expect("the ceiling is up");
+                if (luminance(r) / t - 1.0).abs() < 0.15 {
+                    close += 1;
+                }
+                got += luminance(r) as f64 * row_sa as f64;
+                want += t as f64 * row_sa as f64;
+            }
+        }
+        // Only pixels along the panel's edge, sampled between pixels, miss.
+        assert!(close as f64 > 0.85 * lit as f64, "{close} of {lit}");
+        assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
     }
 }

@@ -490,8 +490,12 @@ pub fn predict_frame(
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
         let mut placed = Vec::new();
-        if params.fusion.place_lights && used.len() >= 2 {
-            let (a, b) = (get_probe(used[0])?.0, get_probe(used[1])?.0);
+        let pair = if params.fusion.place_lights && used.len() >= 2 {
+            Some((get_probe(used[0])?.0, get_probe(used[1])?.0))
+        } else {
+            None
+        };
+        if let Some((a, b)) = &pair {
             placed = lights_at_frame(
                 (&a.image, &a.pose),
                 (&b.image, &b.pose),
