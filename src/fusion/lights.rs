@@ -360,6 +360,42 @@ impl LightView<'_> {
     }
 }
 
+/// Bright sources far away (the sky and the sun through a window, and their mirror
+/// images in glossy floors), seen by the probes in the same direction as by the
+/// frame: radiance at infinity depends only on the direction.
+#[derive(Clone, Debug)]
+pub struct SkyView<'a> {
+    /// Probes that may see the same far source.
+    pub probes: Vec<View<'a>>,
+    /// The frame's pose.
+    pub frame: Pose,
+    /// Radiance (luminance) a probe's sample must exceed to count: a probe that sees
+    /// a wall in that direction, not the far source, says nothing about it.
+    pub floor: f32,
+}
+
+impl SkyView<'_> {
+    /// Radiance in direction `d` (the frame's camera axes) from the probes that see
+    /// something brighter than `floor` there, nearer probes weighing more; `None`
+    /// when none does.
+    pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        let dw = self.frame.world_from_camera * d;
+        let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
+        for (img, pose) in &self.probes {
+            let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
+            if luminance(c) <= self.floor {
+                continue;
+            }
+            let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
+            for k in 0..3 {
+                sum[k] += wt * c[k] as f64;
+            }
+            norm += wt;
+        }
+        (norm > 0.0).then(|| sum.map(|s| (s / norm) as f32))
+    }
+}
+
 /// The lights two probes (image and pose each) both see, placed in 3-D and carried
 /// to a frame with pose `frame`: direction in the frame's camera axes, power at
 /// its position and the brightest mean radiance a probe saw, for

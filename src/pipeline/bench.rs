@@ -143,7 +143,7 @@ pub fn bench_scored(
         let mut size = None;
         for f in &scene.frames {
             let mut used = scene.probes_by_distance(f.pose.position);
-            used.truncate(params.method.probes_needed());
+            used.truncate(params.probes_needed());
             inputs.push((f, used));
         }
         // Untimed pass: loads probes and computes every probe face's features once.

@@ -67,6 +67,21 @@ pub struct RunParams {
     pub fusion_base: Method,
 }
 
+impl RunParams {
+    /// How many probes (nearest first) a frame uses: the method's, and for fusion
+    /// also the probes in which far sources are looked up.
+    pub fn probes_needed(&self) -> usize {
+        match self.method {
+            Method::Fusion => self
+                .fusion
+                .far_probes
+                .max(self.fusion_base.probes_needed())
+                .max(2),
+            m => m.probes_needed(),
+        }
+    }
+}
+
 impl Default for RunParams {
     fn default() -> Self {
         RunParams {
@@ -202,7 +217,7 @@ fn frame_inputs(
     settings: &str,
 ) -> (Vec<usize>, String) {
     let mut used = scene.probes_by_distance(frame.pose.position);
-    used.truncate(params.method.probes_needed());
+    used.truncate(params.probes_needed());
     let mut parts = vec![
         settings.to_string(),
         file_stamp(&frame.sdr),
@@ -504,7 +519,18 @@ pub fn predict_frame(
                 &params.fusion,
             );
         }
-        let (img, mut rep) = fuse_with_lights(sdr, lin, &est, white, &placed, &params.fusion)?;
+        // Far sources (sky through a window) are looked up in every probe used.
+        let far: Vec<_> = used
+            .iter()
+            .map(|&u| get_probe(u).map(|(pp, _)| pp))
+            .collect::<Result<_>>()?;
+        let sky = crate::fusion::lights::SkyView {
+            probes: far.iter().map(|pp| (&*pp.image, &pp.pose)).collect(),
+            frame: frame.pose,
+            floor: white,
+        };
+        let (img, mut rep) =
+            fuse_with_lights(sdr, lin, &est, white, &placed, Some(&sky), &params.fusion)?;
         rep.time_ms = t.elapsed().as_secs_f64() * 1e3;
         return Ok((img, wr, fr, Some(rep)));
     }
