@@ -620,8 +620,8 @@ pub fn fuse_with_lights(
         .iter()
         .map(|c| c.1 > 0.0 && c.0 >= p.min_far_cover * c.1)
         .collect();
-    // The median (by luminance) of each region's covered pixels fills the others
-    // (a mean would spread a sun's core over them).
+    // The median (by luminance) of each region's covered pixels: the least the
+    // others get (a mean would spread a sun's core over them).
     let mut sky_median: Vec<Option<[f32; 3]>> = vec![None; n];
     if sky.is_some() {
         let mut per: Vec<Vec<[f32; 3]>> = vec![Vec::new(); n];
@@ -641,19 +641,18 @@ pub fn fuse_with_lights(
         }
     }
     // The radiance a region's light gives pixel `i`: through its surface, or from
-    // the far source. With `fill` (fully clipped pixels) the far source's median
-    // fills the pixels it does not cover, and a placed light with no surface keeps
-    // its power (the far source then only shapes it, see `shape`); without
-    // (partially clipped pixels) only covered pixels get a value.
-    let light_radiance = |i: usize, fill: bool| -> Option<[f32; 3]> {
+    // the far source where the probes cover it. For fully clipped pixels (`full`)
+    // a placed light with no surface keeps its power: the far source then only
+    // shapes it (`shape`).
+    let light_radiance = |i: usize, full: bool| -> Option<[f32; 3]> {
         let o = lab[i] as usize;
         if let Some((_, lv)) = view[o] {
             return lv.radiance(dirs(i));
         }
-        if !sky_ok[o] || (anchored[o] && fill) {
+        if !sky_ok[o] || (anchored[o] && full) {
             return None;
         }
-        sky_rad[i].or(if fill { sky_median[o] } else { None })
+        sky_rad[i]
     };
     // Partially clipped pixels: measured channels kept, each clipped channel
     // following the estimate's colour ratio to the brightest measured one (never
@@ -794,19 +793,24 @@ pub fn fuse_with_lights(
             _ => shifted(i),
         }
     };
-    // Fully clipped pixels receive the rest of the region's power: the white point
-    // plus the shifted excess, rescaled to that power, spread evenly when the
-    // shifted light misses them. A region with no fully clipped pixel keeps what
-    // its partial pixels carry.
+    // Fully clipped pixels a light carried pixel by pixel does not cover receive
+    // the rest of the region's power: the white point plus the shifted excess,
+    // rescaled to that power, spread evenly when the shifted light misses them. A
+    // region with no fully clipped pixel keeps what its partial pixels carry.
     let mut inside = vec![0.0f64; n];
+    let mut carried = vec![0.0f64; n];
     for i in 0..w * h {
         if lab[i] != u32::MAX && kind(i) == Kind::Full {
             let o = lab[i] as usize;
-            inside[o] += (luminance(shape(i)) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
+            let a = sa[i / w] as f64;
+            match light_radiance(i, true) {
+                Some(r) => carried[o] += (luminance(r) as f64 - white as f64).max(0.0) * a,
+                None => inside[o] += (luminance(shape(i)) as f64 - white as f64).max(0.0) * a,
+            }
         }
     }
     let rest: Vec<f64> = (0..n)
-        .map(|o| (target_power[o] - partial_power[o]).max(0.0))
+        .map(|o| (target_power[o] - partial_power[o] - carried[o]).max(0.0))
         .collect();
     for i in 0..w * h {
         if lab[i] == u32::MAX || kind(i) != Kind::Full {
@@ -853,6 +857,13 @@ pub fn fuse_with_lights(
         for k in 0..3 {
             // Never below what the SDR frame measured (clipping only lowers values).
             v[k] = ((colour[k] as f64 * target / lc) as f32).max(s[k]);
+        }
+        // A far source's pixels the probes do not cover are at least as bright as
+        // its median.
+        if let (Some(m), true) = (sky_median[o], sky_ok[o] && !anchored[o]) {
+            if luminance(m) > luminance(v) {
+                v = m;
+            }
         }
         out.set(x, y, v);
     }
