@@ -504,33 +504,36 @@ pub fn predict_frame(
             / scene.path_gain;
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
+        let probes: Vec<_> = used
+            .iter()
+            .map(|&u| get_probe(u).map(|(pp, _)| pp))
+            .collect::<Result<_>>()?;
+        fn view(pp: &Arc<PreparedProbe>) -> crate::fusion::lights::View<'_> {
+            (&*pp.image, &pp.pose)
+        }
         let mut placed = Vec::new();
-        let pair = if params.fusion.place_lights && used.len() >= 2 {
-            Some((get_probe(used[0])?.0, get_probe(used[1])?.0))
-        } else {
-            None
-        };
-        if let Some((a, b)) = &pair {
+        if params.fusion.place_lights && probes.len() >= 2 {
             placed = lights_at_frame(
-                (&a.image, &a.pose),
-                (&b.image, &b.pose),
+                view(&probes[0]),
+                view(&probes[1]),
                 &frame.pose,
                 white,
                 &params.fusion,
             );
         }
-        // Far sources (sky through a window) are looked up in every probe used.
-        let far: Vec<_> = used
-            .iter()
-            .map(|&u| get_probe(u).map(|(pp, _)| pp))
-            .collect::<Result<_>>()?;
-        let sky = crate::fusion::lights::SkyView {
-            probes: far.iter().map(|pp| (&*pp.image, &pp.pose)).collect(),
+        // Far sources (sky through a window) are looked up in the nearest
+        // `far_probes` probes.
+        let sky = (params.fusion.far_probes > 0).then(|| crate::fusion::lights::SkyView {
+            probes: probes
+                .iter()
+                .take(params.fusion.far_probes)
+                .map(view)
+                .collect(),
             frame: frame.pose,
             floor: white,
-        };
+        });
         let (img, mut rep) =
-            fuse_with_lights(sdr, lin, &est, white, &placed, Some(&sky), &params.fusion)?;
+            fuse_with_lights(sdr, lin, &est, white, &placed, sky.as_ref(), &params.fusion)?;
         rep.time_ms = t.elapsed().as_secs_f64() * 1e3;
         return Ok((img, wr, fr, Some(rep)));
     }
