@@ -1343,6 +1343,16 @@ mod tests {
                 });
             }
         }
+        // One pixel inside the panel as JPEG's chroma subsampling leaves it: red
+        // coded just under the clip level although the panel is 30x white there.
+        let to_centre = glam::Vec3::new(1.0, 0.5, 2.6) - frame.position;
+        let (u, v) = crate::sphere::dir_to_uv(frame.world_from_camera.transpose() * to_centre);
+        let core = (v * h as f32) as usize * w + (u * w as f32) as usize;
+        assert_eq!(truth.get(core % w, core / w), [60.0, 50.0, 40.0]);
+        codes[3 * core] = 249;
+        let mut lin = lin;
+        let (cx, cy) = (core % w, core / w);
+        lin.set(cx, cy, [249.0 / 249.0 * white, white, white]);
         let sdr = SdrImage::from_vec(w, h, codes).unwrap();
         // The estimate: the nearer probe as it is, its panel far from the frame's.
         let p = FusionParams::default();
@@ -1376,6 +1386,9 @@ mod tests {
         let want = power_above(&truth, white);
         let got = power_above(&out, white);
         assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
+        // The bled channel is not taken as a measurement.
+        let (o, t) = (out.get(cx, cy), truth.get(cx, cy));
+        assert!((o[0] / t[0] - 1.0).abs() < 0.2, "{o:?} vs {t:?}");
         assert!(log_err(&out) < 0.1, "{}", log_err(&out));
         // Power alone, spread in the estimate's shape, cannot draw the panel.
         assert!(
