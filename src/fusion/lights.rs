@@ -277,8 +277,8 @@ fn disagreement(src: View, pixels: &[u32], dst: View, surface: &Surface) -> f64 
 }
 
 /// The surface through `point` on which two probes' views of a light (`la` seen
-/// by `a`, `lb` by `b`) agree best, with its disagreement (mean absolute
-/// log-luminance difference). Candidates: the plane level with the probes' horizon
+/// by `a`, `lb` by `b`) agree best, with its disagreement (the median absolute
+/// log-luminance difference, averaged over both ways). Candidates: the plane level with the probes' horizon
 /// (ceilings, floors), the upright plane facing the probes (walls, windows), the
 /// plane facing them (anything tilted), and infinity.
 pub fn fit_surface(a: View, la: &Light, b: View, lb: &Light, point: Vec3) -> (Surface, f64) {
@@ -303,15 +303,10 @@ pub fn fit_surface(a: View, la: &Light, b: View, lb: &Light, point: Vec3) -> (Su
     candidates
         .into_iter()
         .map(|s| {
-            // From the probe that sees the light smaller into the one that sees it
-            // larger: each of its pixels lands on well-sampled pixels of the other
-            // (the other way, a light seen large would be compared against a
-            // sliver of a few pixels).
-            let e = if la.pixels.len() <= lb.pixels.len() {
-                disagreement(a, &la.pixels, b, &s)
-            } else {
-                disagreement(b, &lb.pixels, a, &s)
-            };
+            // Both ways: each probe's view of the light must be explained by the
+            // other's. One way only, a uniform panel seen small by one probe lands
+            // inside the other's view of it under several planes.
+            let e = 0.5 * (disagreement(a, &la.pixels, b, &s) + disagreement(b, &lb.pixels, a, &s));
             (s, e)
         })
         .min_by(|x, y| x.1.total_cmp(&y.1))
@@ -692,6 +687,48 @@ pub(crate) mod tests {
             Surface::Infinity.seen_from(Vec3::ZERO, up, Vec3::ONE),
             Some(up)
         );
+    }
+
+    #[test]
+    fn a_uniform_panel_seen_small_and_large_is_fitted_to_the_ceiling() {
+        // No glow: only the panel's outline tells the planes apart. One probe is
+        // almost under it, the other sees it small and far.
+        let (w, h) = (256, 128);
+        let room = |from: Vec3, d: Vec3| -> [f32; 3] {
+            if d.z > 1e-4 {
+                let x = from + d * ((2.6 - from.z) / d.z);
+                if (x.x - 1.0).abs() < 0.3 && (x.y - 0.5).abs() < 0.3 {
+                    return [300.0, 280.0, 250.0];
+                }
+            }
+            [0.5, 0.5, 0.5]
+        };
+        let render = |pose: &Pose| {
+            HdrImage::from_fn(w, h, |x, y| {
+                room(
+                    pose.position,
+                    pose.world_from_camera * pixel_to_dir(x, y, w, h),
+                )
+            })
+        };
+        let (a, b) = (
+            upright(Vec3::new(0.8, 0.3, 1.5)),
+            upright(Vec3::new(-1.6, -0.9, 1.5)),
+        );
+        let (ia, ib) = (render(&a), render(&b));
+        let (la, lb) = (
+            find_lights(&ia, &a, 2.0, 3, 0.7),
+            find_lights(&ib, &b, 2.0, 3, 0.7),
+        );
+        assert_eq!((la.len(), lb.len()), (1, 1));
+        assert!(la[0].pixels.len() > 3 * lb[0].pixels.len());
+        let placed = triangulate(&la, a.position, &lb, b.position, 0.5);
+        assert_eq!(placed.len(), 1);
+        let (surface, _) = fit_surface((&ia, &a), &la[0], (&ib, &b), &lb[0], placed[0].position);
+        match surface {
+            Surface::Plane { normal, .. } => assert!(normal.z.abs() > 0.999, "{normal}"),
+            Surface::Infinity => panic!("the panel is not at infinity"),
+        }
     }
 
     #[test]
