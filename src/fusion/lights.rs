@@ -249,8 +249,8 @@ fn disagreement(src: View, pixels: &[u32], dst: View, surface: &Surface) -> f64 
     let (img, pose) = src;
     let (w, h) = (img.width(), img.height());
     let to_dst = dst.1.world_from_camera.transpose();
-    // At most about 2000 pixels: the fit needs the light's shape, not every pixel.
-    let step = (pixels.len() / 2000).max(1);
+    // At most about 500 pixels: the fit needs the light's shape, not every pixel.
+    let step = (pixels.len() / 500).max(1);
     let mut errs: Vec<f64> = pixels
         .iter()
         .step_by(step)
