@@ -430,6 +430,7 @@ pub fn fuse_with_lights(
     // correctly). Shape against shape: a power-weighted centre moved a lamp that
     // is brighter on one side even when the estimate had it in the right place.
     let mut est_power = vec![0.0f64; n];
+    let mut est_peak = vec![0.0f64; n];
     let mut est_area = vec![0.0f64; n];
     let mut est_c = vec![(0.0f64, 0.0f64); n];
     let mut est_n = vec![0usize; n];
@@ -454,6 +455,7 @@ pub fn fuse_with_lights(
             let l = luminance(estimate.get(x, y)) as f64;
             let m = (l - white as f64).max(0.0) * sa[y] as f64;
             est_power[o] += m;
+            est_peak[o] = est_peak[o].max(l - white as f64);
             est_area[o] += sa[y] as f64;
             if l > white as f64 {
                 est_n[o] += 1;
@@ -562,7 +564,10 @@ pub fn fuse_with_lights(
             } else if anchored[o] {
                 anchor_power[o]
             } else {
-                est_power[o]
+                // No pixel of the region is brighter than the brightest pixel of
+                // the light attributed to it: a small region (a speck near the
+                // pole) cannot hold a whole lamp's power.
+                est_power[o].min(est_peak[o] * core_area[o])
             }
         })
         .collect();
@@ -1278,6 +1283,26 @@ mod tests {
         let (pe, po) = (power_above(&est, 1.0), power_above(&out, 1.0));
         assert!((po - pe).abs() / pe < 1e-3, "power {po} vs {pe}");
         assert!(out.data().iter().all(|&v| v >= 1.0));
+    }
+
+    #[test]
+    fn a_small_region_holds_no_more_than_the_lights_brightest_radiance() {
+        // The frame clipped only a 3x3 speck; the estimate has a lamp of 13x13
+        // pixels at 50 there. All of the lamp's power in the speck would make its
+        // pixels about 19 times brighter than any pixel of the lamp.
+        let (w, h) = (128, 64);
+        let (sdr, lin) = frame_with_lamp(w, h, (60, 30), 1);
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if x.abs_diff(60) <= 6 && y.abs_diff(30) <= 6 {
+                [50.0, 50.0, 50.0]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        let peak = out.pixels().map(luminance).fold(0.0f32, f32::max);
+        assert!(peak <= 50.0 * 1.001, "{peak}");
+        assert!(peak > 40.0, "{peak}");
     }
 
     #[test]
