@@ -24,6 +24,7 @@ use crate::error::{Error, Result};
 use crate::image::{luminance, HdrImage, SdrImage};
 use crate::sphere::row_solid_angles;
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 
 /// Settings of the fusion.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -603,7 +604,8 @@ pub fn fuse_with_lights(
     // Regions with no light carried through a surface: far sources the other
     // probes see in the same direction (sky through a window), used when they
     // cover at least `min_far_cover` of the region's fully clipped solid angle.
-    let mut sky_rad: Vec<Option<[f32; 3]>> = vec![None; w * h];
+    // Kept per covered pixel only: regions are a few percent of a panorama.
+    let mut sky_rad: HashMap<usize, [f32; 3]> = HashMap::new();
     let mut sky_cover = vec![(0.0f64, 0.0f64); n];
     if let Some(sky) = sky {
         for i in 0..w * h {
@@ -611,11 +613,14 @@ pub fn fuse_with_lights(
                 continue;
             }
             let o = lab[i] as usize;
-            sky_rad[i] = sky.radiance(dirs(i));
+            let r = sky.radiance(dirs(i));
+            if let Some(r) = r {
+                sky_rad.insert(i, r);
+            }
             if kinds[i] == Kind::Full {
                 let a = sa[i / w] as f64;
                 sky_cover[o].1 += a;
-                if sky_rad[i].is_some() {
+                if r.is_some() {
                     sky_cover[o].0 += a;
                 }
             }
@@ -632,7 +637,7 @@ pub fn fuse_with_lights(
         let mut per: Vec<Vec<[f32; 3]>> = vec![Vec::new(); n];
         for i in 0..w * h {
             if lab[i] != u32::MAX && kinds[i] == Kind::Full && sky_ok[lab[i] as usize] {
-                if let Some(r) = sky_rad[i] {
+                if let Some(&r) = sky_rad.get(&i) {
                     per[lab[i] as usize].push(r);
                 }
             }
@@ -657,7 +662,7 @@ pub fn fuse_with_lights(
         if !sky_ok[o] || (anchored[o] && full) {
             return None;
         }
-        sky_rad[i]
+        sky_rad.get(&i).copied()
     };
     // Partially clipped pixels: measured channels kept, each clipped channel
     // following the estimate's colour ratio to the brightest measured one (never
@@ -793,7 +798,7 @@ pub fn fuse_with_lights(
     // probes see in the same direction gives it its shape.
     let shape = |i: usize| -> [f32; 3] {
         let o = lab[i] as usize;
-        match sky_rad[i] {
+        match sky_rad.get(&i).copied() {
             Some(r) if sky_ok[o] && anchored[o] => r,
             _ => shifted(i),
         }
@@ -804,12 +809,17 @@ pub fn fuse_with_lights(
     // region with no fully clipped pixel keeps what its partial pixels carry.
     let mut inside = vec![0.0f64; n];
     let mut carried = vec![0.0f64; n];
+    // What a light carries to each fully clipped pixel, looked up once.
+    let mut full_radiance: HashMap<usize, [f32; 3]> = HashMap::new();
     for i in 0..w * h {
         if lab[i] != u32::MAX && kind(i) == Kind::Full {
             let o = lab[i] as usize;
             let a = sa[i / w] as f64;
             match light_radiance(i, true) {
-                Some(r) => carried[o] += (luminance(r) as f64 - white as f64).max(0.0) * a,
+                Some(r) => {
+                    full_radiance.insert(i, r);
+                    carried[o] += (luminance(r) as f64 - white as f64).max(0.0) * a
+                }
                 None => inside[o] += (luminance(shape(i)) as f64 - white as f64).max(0.0) * a,
             }
         }
@@ -828,7 +838,7 @@ pub fn fuse_with_lights(
         // of the same surface point, never below the white point the frame saw
         // it clip at.
         {
-            if let Some(r) = light_radiance(i, true) {
+            if let Some(&r) = full_radiance.get(&i) {
                 let lr = luminance(r).max(0.0);
                 let (colour, lc) = if lr > 1e-12 {
                     (r, lr)
@@ -1343,6 +1353,28 @@ mod tests {
         assert!(luminance(out.get(20, 10)) >= 1.0 - 1e-6);
     }
 
+    /// What an SDR camera clipping at `white` records of `truth`: 8-bit codes
+    /// (linear, 255 where clipped) and their radiance.
+    fn sdr_of(truth: &HdrImage, white: f32) -> (Vec<u8>, HdrImage) {
+        let codes = truth
+            .pixels()
+            .flat_map(|p| {
+                p.map(|v| {
+                    if v >= white {
+                        255
+                    } else {
+                        (v / white * 249.0).round() as u8
+                    }
+                })
+            })
+            .collect();
+        let (w, h) = (truth.width(), truth.height());
+        (
+            codes,
+            HdrImage::from_fn(w, h, |x, y| truth.get(x, y).map(|v| v.min(white))),
+        )
+    }
+
     /// Mean absolute log-luminance error of `img` against `truth` over the pixels
     /// where `sdr` clipped in any channel (in all three with `all`).
     fn clipped_log_err(sdr: &SdrImage, img: &HdrImage, truth: &HdrImage, all: bool) -> f64 {
@@ -1374,17 +1406,7 @@ mod tests {
         let frame = upright(glam::Vec3::new(1.1, 0.6, 1.5));
         let truth = render(&frame, w, h);
         let white = 2.0f32;
-        let mut codes = Vec::with_capacity(w * h * 3);
-        let lin = HdrImage::from_fn(w, h, |x, y| truth.get(x, y).map(|v| v.min(white)));
-        for p in truth.pixels() {
-            for v in p {
-                codes.push(if v >= white {
-                    255
-                } else {
-                    (v / white * 249.0).round() as u8
-                });
-            }
-        }
+        let (mut codes, mut lin) = sdr_of(&truth, white);
         // One pixel inside the panel as JPEG's chroma subsampling leaves it: red
         // coded just under the clip level although the panel is 30x white there.
         let to_centre = glam::Vec3::new(1.0, 0.5, 2.6) - frame.position;
@@ -1392,7 +1414,6 @@ mod tests {
         let core = (v * h as f32) as usize * w + (u * w as f32) as usize;
         assert_eq!(truth.get(core % w, core / w), [60.0, 50.0, 40.0]);
         codes[3 * core] = 249;
-        let mut lin = lin;
         let (cx, cy) = (core % w, core / w);
         lin.set(cx, cy, [249.0 / 249.0 * white, white, white]);
         let sdr = SdrImage::from_vec(w, h, codes).unwrap();
@@ -1465,19 +1486,7 @@ mod tests {
         let frame = upright(glam::Vec3::new(0.6, 0.1, 1.5));
         let truth = render(&frame);
         let white = 2.0f32;
-        let lin = HdrImage::from_fn(w, h, |x, y| truth.get(x, y).map(|v| v.min(white)));
-        let codes: Vec<u8> = truth
-            .pixels()
-            .flat_map(|p| {
-                p.map(|v| {
-                    if v >= white {
-                        255
-                    } else {
-                        (v / white * 249.0).round() as u8
-                    }
-                })
-            })
-            .collect();
+        let (codes, lin) = sdr_of(&truth, white);
         let sdr = SdrImage::from_vec(w, h, codes).unwrap();
         let sky = SkyView {
             probes: images.iter().zip(&probes).collect(),
