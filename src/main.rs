@@ -150,6 +150,10 @@ struct FlowOpts {
     /// Weight of the log-exposure seam cost where the SDR frame clipped.
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_clipped)]
     seam_clipped: f32,
+    /// Let the graph cut relabel measured (unclipped) pixels too; by default they
+    /// keep the label their data cost prefers and the cut decides only clipped ones.
+    #[arg(long)]
+    cut_measured: bool,
     /// Weight of the colour term against the confidence and distance terms.
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_weight)]
     dc_weight: f32,
@@ -172,6 +176,7 @@ impl FlowOpts {
             clipped_dc_weight: self.clipped_dc_weight,
             clipped_potts: self.clipped_potts,
             seam_clipped: self.seam_clipped,
+            measured_decides: !self.cut_measured,
             dc_weight: self.dc_weight,
             work_width: self.flow_work_width,
             ..Default::default()

@@ -56,6 +56,12 @@ pub struct FlowMethodParams {
     /// Weight of the log-exposure seam cost where the frame clipped (and next to
     /// such pixels).
     pub seam_clipped: f32,
+    /// Where the frame measured (did not clip), the label is the one its data cost
+    /// prefers, whatever a clipped neighbour's label: the Potts cost then carries
+    /// the rim's evidence into a clipped region but cannot pull a measured rim
+    /// pixel onto the region's label against its measurement.
+    #[serde(default = "yes")]
+    pub measured_decides: bool,
     /// Weight of the colour term Dc against Df and Dd (the thesis: 1). Dc is a
     /// measurement (typically 0.01 to 0.1 in display units) while Dd spans [0, 1]
     /// and Df is near 1 wherever the frame has little texture; at weight 1 the
@@ -71,6 +77,10 @@ pub struct FlowMethodParams {
     /// of those stages took over 10 GB. 0 = always full resolution.
     #[serde(default = "default_work_width")]
     pub work_width: usize,
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn default_work_width() -> usize {
@@ -105,6 +115,7 @@ impl Default for FlowMethodParams {
             clipped_dc_weight: 100.0,
             clipped_potts: 5.0,
             seam_clipped: 0.0,
+            measured_decides: true,
             dc_weight: 100.0,
             work_width: default_work_width(),
         }
@@ -430,6 +441,9 @@ fn fuse(
             features[(px * n_lab + n_src) * ch + seam_ch + n_src] = potts_feature;
         }
     }
+    if p.measured_decides && !p.no_smoothness {
+        fix_measured_labels(&mut data, &clipped_px, n_lab);
+    }
     timings.warp_ms = ms(t);
 
     let t = Instant::now();
@@ -538,6 +552,22 @@ fn fuse(
         warped,
         report,
     })
+}
+
+/// Makes every label but the cheapest infeasible at measured (unclipped) pixels, so
+/// the cut decides only the clipped ones (see `FlowMethodParams::measured_decides`).
+fn fix_measured_labels(data: &mut [f32], clipped_px: &[bool], n_lab: usize) {
+    for (d, &clipped) in data.chunks_exact_mut(n_lab).zip(clipped_px) {
+        if clipped {
+            continue;
+        }
+        let best = (0..n_lab).fold(0, |b, i| if d[i] < d[b] { i } else { b });
+        for (i, v) in d.iter_mut().enumerate() {
+            if i != best {
+                *v = INFEASIBLE;
+            }
+        }
+    }
 }
 
 /// Area-averaged resampling to `ws x hs` of a `w x h` panorama given by `f(x, y)`
@@ -896,6 +926,84 @@ mod tests {
         };
         let (out, _) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &abl).unwrap();
         assert!(share(&out, 20.0, true) > 0.9);
+    }
+
+    #[test]
+    fn a_measured_pixel_keeps_its_label_next_to_a_clipped_region() {
+        // A smooth frame (so the flow is near zero and warping keeps values) whose
+        // region clips.
+        let (mut sdr, _, resp) = frame();
+        for y in 0..H {
+            for x in 0..W {
+                if !in_region(x, y) {
+                    let v = 110.0 + 60.0 * (x as f32 / 9.0).sin() * (y as f32 / 7.0).cos();
+                    let o = 3 * (y * W + x);
+                    sdr.data_mut()[o..o + 3].fill(v as u8);
+                }
+            }
+        }
+        let lin = HdrImage::from_fn(W, H, |x, y| {
+            let c = sdr.get(x, y);
+            [0, 1, 2].map(|k| resp.decode(c[k] as f32 / 255.0))
+        });
+        // The ring of measured pixels around the region.
+        let ring =
+            |x: usize, y: usize| !in_region(x, y) && (39..61).contains(&x) && (19..31).contains(&y);
+        // "exact" matches the frame on the ring but is below white in the region; "lamp"
+        // fills the region but is 15% off on the ring.
+        let exact = source(&lin, |_, _| 0.9);
+        let lamp = HdrImage::from_fn(W, H, |x, y| {
+            if in_region(x, y) {
+                [50.0; 3]
+            } else if ring(x, y) {
+                lin.get(x, y).map(|v| 1.15 * v)
+            } else {
+                lin.get(x, y)
+            }
+        });
+        let sources = [
+            Source {
+                name: "exact".into(),
+                image: &exact,
+                distance_m: 1.0,
+            },
+            Source {
+                name: "lamp".into(),
+                image: &lamp,
+                distance_m: 1.0,
+            },
+        ];
+        // Share of ring pixels output nearer the frame's radiance than the lamp's.
+        let ring_exact = |out: &HdrImage| {
+            let (mut n, mut hit) = (0, 0);
+            for y in 0..H {
+                for x in 0..W {
+                    if ring(x, y) {
+                        n += 1;
+                        let (o, f) = (out.get(x, y)[1], lin.get(x, y)[1]);
+                        hit += usize::from((o - f).abs() < (o - 1.15 * f).abs());
+                    }
+                }
+            }
+            hit as f32 / n as f32
+        };
+        let p = FlowMethodParams {
+            measured_decides: true,
+            ..Default::default()
+        };
+        let (out, _) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap();
+        assert!(share(&out, 50.0, false) > 0.9);
+        assert!(ring_exact(&out) > 0.8, "{}", ring_exact(&out));
+        // Without it the Potts term pulls the ring onto the region's label where the
+        // ring's evidence is weaker than a label change (0.84 against 0.38 here; the
+        // rest of the ring prefers the lamp on its flow confidence alone).
+        let pulled = FlowMethodParams {
+            measured_decides: false,
+            ..Default::default()
+        };
+        let (out, _) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &pulled).unwrap();
+        assert!(share(&out, 50.0, false) > 0.9);
+        assert!(ring_exact(&out) < 0.5, "{}", ring_exact(&out));
     }
 
     #[test]
