@@ -10,6 +10,7 @@
 #include <opencv2/video/tracking.hpp>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include <stdexcept>
 #include <string>
@@ -210,12 +211,14 @@ Homography find_homography(rust::Slice<const float> src,
   return out;
 }
 
-rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
-                          rust::Slice<const uint8_t> b, int32_t width,
-                          int32_t height, const DisParams &p) {
+void dis_flow(rust::Slice<const uint8_t> a, rust::Slice<const uint8_t> b,
+              int32_t width, int32_t height, const DisParams &p,
+              rust::Slice<float> out) {
   if (width <= 0 || height <= 0 || a.size() != size_t(width) * size_t(height) ||
       b.size() != a.size())
     throw std::invalid_argument("flow images differ in size or do not match it");
+  if (out.size() != 2 * a.size())
+    throw std::invalid_argument("flow output buffer does not match the image size");
   cv::Mat ma(height, width, CV_8U, const_cast<uint8_t *>(a.data()));
   cv::Mat mb(height, width, CV_8U, const_cast<uint8_t *>(b.data()));
   int preset = p.preset == 0   ? cv::DISOpticalFlow::PRESET_ULTRAFAST
@@ -258,14 +261,10 @@ rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
   dis->calc(ma, mb, flow);
   if (flow.type() != CV_32FC2 || flow.rows != height || flow.cols != width)
     throw std::runtime_error("DIS returned a flow field of unexpected shape");
-  rust::Vec<float> out;
-  out.reserve(size_t(width) * size_t(height) * 2);
-  for (int y = 0; y < height; ++y) {
-    const float *row = flow.ptr<float>(y);
-    for (int x = 0; x < 2 * width; ++x)
-      out.push_back(row[x]);
-  }
-  return out;
+  const size_t row_len = 2 * size_t(width);
+  for (int y = 0; y < height; ++y)
+    std::memcpy(out.data() + size_t(y) * row_len, flow.ptr<float>(y),
+                row_len * sizeof(float));
 }
 
 } // namespace lumiprobe

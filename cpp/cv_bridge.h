@@ -47,10 +47,10 @@ Homography find_homography(rust::Slice<const float> src,
                            int32_t max_iters, double confidence,
                            int32_t method);
 
-// Dense optical flow (DIS) from `a` to `b`: a(x) ~ b(x + flow(x)); returns
-// interleaved (dx, dy) per pixel.
-rust::Vec<float> dis_flow(rust::Slice<const uint8_t> a,
-                          rust::Slice<const uint8_t> b, int32_t width,
-                          int32_t height, const DisParams &params);
+// Dense optical flow (DIS) from `a` to `b`: a(x) ~ b(x + flow(x)), written to
+// `out` (Rust-owned, 2 * width * height floats) as interleaved (dx, dy) per pixel.
+void dis_flow(rust::Slice<const uint8_t> a, rust::Slice<const uint8_t> b,
+              int32_t width, int32_t height, const DisParams &params,
+              rust::Slice<float> out);
 
 } // namespace lumiprobe

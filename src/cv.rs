@@ -143,7 +143,8 @@ mod ffi {
             width: i32,
             height: i32,
             params: &DisParams,
-        ) -> Result<Vec<f32>>;
+            out: &mut [f32],
+        ) -> Result<()>;
         fn find_homography(
             src: &[f32],
             dst: &[f32],
@@ -331,7 +332,9 @@ pub fn dis_flow(
             b.len()
         )));
     }
-    ffi::dis_flow(a, b, width as i32, height as i32, params).map_err(cv_err)
+    let mut out = vec![0.0f32; 2 * a.len()];
+    ffi::dis_flow(a, b, width as i32, height as i32, params, &mut out).map_err(cv_err)?;
+    Ok(out)
 }
 
 /// Fits a homography `dst ~ H src` robustly. Returns `None` when fewer than four
