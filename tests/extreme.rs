@@ -1200,6 +1200,7 @@ fn negative_half_float_overflow_is_an_error_or_a_clamp() {
     let half = ExrWriteOptions {
         half: true,
         on_overflow: Overflow::Error,
+        ..Default::default()
     };
     let msg = exr::write(&p, &img, &half).unwrap_err().to_string();
     assert!(
@@ -1210,6 +1211,7 @@ fn negative_half_float_overflow_is_an_error_or_a_clamp() {
     let clamp = ExrWriteOptions {
         half: true,
         on_overflow: Overflow::Clamp,
+        ..Default::default()
     };
     exr::write(&p, &img, &clamp).unwrap();
     assert_eq!(io::read_hdr(&p).unwrap().get(1, 2), [-65504.0, 0.5, 0.5]);
@@ -1336,7 +1338,7 @@ proptest! {
                 prop_assert_eq!(a.to_bits(), b.to_bits());
             }
         }
-        let opts = ExrWriteOptions { half: true, on_overflow: Overflow::Error };
+        let opts = ExrWriteOptions { half: true, on_overflow: Overflow::Error, ..Default::default() };
         let bytes = exr::encode(&half, Path::new("h.exr"), &opts).unwrap();
         let back = io::decode_hdr(&bytes, Path::new("h.exr"), &limits).unwrap();
         for (a, b) in back.data().iter().zip(half.data()) {

@@ -103,6 +103,7 @@ fn exr_half_overflow_is_an_error_or_an_explicit_clamp() {
     let opts = ExrWriteOptions {
         half: true,
         on_overflow: Overflow::Error,
+        ..Default::default()
     };
     let msg = exr::write(&p, &img, &opts).unwrap_err().to_string();
     assert!(msg.contains("sun.exr"), "{msg}");
@@ -113,6 +114,7 @@ fn exr_half_overflow_is_an_error_or_an_explicit_clamp() {
     let opts = ExrWriteOptions {
         half: true,
         on_overflow: Overflow::Clamp,
+        ..Default::default()
     };
     exr::write(&p, &img, &opts).unwrap();
     assert_eq!(io::read_hdr(&p).unwrap().get(3, 3), [65504.0; 3]);

@@ -65,6 +65,10 @@ pub struct RunParams {
     pub fusion: FusionParams,
     /// The method whose output fills the clipped regions in [`Method::Fusion`].
     pub fusion_base: Method,
+    /// Compression of the per-frame EXR outputs. Not part of a frame's fingerprint:
+    /// it changes the file, not the radiance.
+    #[serde(skip)]
+    pub exr_compression: crate::image::io::ExrCompression,
 }
 
 impl RunParams {
@@ -91,6 +95,7 @@ impl Default for RunParams {
             flow: FlowMethodParams::default(),
             fusion: FusionParams::default(),
             fusion_base: Method::Flow,
+            exr_compression: Default::default(),
         }
     }
 }
@@ -358,7 +363,11 @@ fn run_named(
             predict_frame(scene, frame, &sdr, &lin, used, &get_probe, params)?;
         let total_ms = t.elapsed().as_secs_f64() * 1e3;
         drop((sdr, lin));
-        io::write_hdr(&out, &img)?;
+        let exr = io::ExrWriteOptions {
+            compression: params.exr_compression,
+            ..Default::default()
+        };
+        io::write_hdr_with(&out, &img, &exr)?;
         let rec = FrameRecord {
             id: frame.id.clone(),
             probe: probe_meta.id.clone(),

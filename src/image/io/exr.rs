@@ -32,6 +32,33 @@ pub enum Overflow {
     Clamp,
 }
 
+/// Lossless compression of a written EXR file. Measured on a fusion output of
+/// kitchen at 7776x3888 (363 MB raw, 2 threads): ZIP 94 MB in 2.8 s, PIZ 117 MB
+/// in 0.8 s (but 3.7 s to read with the `exr` crate against ZIP's 1.2 s), none in
+/// a fraction of a second. A noisy path-traced panorama compresses far less (ZIP
+/// 92% of raw, PIZ 71%).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+pub enum ExrCompression {
+    /// Deflate over 16 scanlines (OpenEXR's ZIP): smallest for smooth images.
+    #[default]
+    Zip,
+    /// Wavelet + Huffman (OpenEXR's PIZ): smaller and faster to write than ZIP for
+    /// large noisy panoramas, slower to read with the `exr` crate.
+    Piz,
+    /// Uncompressed: the fastest to write and read.
+    None,
+}
+
 /// How to write an EXR file.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ExrWriteOptions {
@@ -39,6 +66,8 @@ pub struct ExrWriteOptions {
     pub half: bool,
     /// Policy for values that do not fit in a half float (only with `half`).
     pub on_overflow: Overflow,
+    /// Lossless compression.
+    pub compression: ExrCompression,
 }
 
 /// Which channels of the chosen layer become RGB.
@@ -270,7 +299,11 @@ fn encode_to(
     check_nonempty(name, w, h)?;
     check_finite(name, img)?;
     let encoding = ::exr::image::Encoding {
-        compression: ::exr::compression::Compression::ZIP16,
+        compression: match opts.compression {
+            ExrCompression::Zip => ::exr::compression::Compression::ZIP16,
+            ExrCompression::Piz => ::exr::compression::Compression::PIZ,
+            ExrCompression::None => ::exr::compression::Compression::Uncompressed,
+        },
         blocks: ::exr::image::Blocks::ScanLines,
         line_order: ::exr::meta::attribute::LineOrder::Increasing,
     };
@@ -342,6 +375,41 @@ mod tests {
     }
 
     #[test]
+    fn every_compression_round_trips_exactly() {
+        // Noisy mantissas, a sun far beyond half-float range, zeros and tiny values,
+        // over more scanlines than one ZIP or PIZ block.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let img = HdrImage::from_fn(37, 41, |x, y| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let noise = (state >> 40) as f32 / (1u64 << 24) as f32;
+            match (x + 3 * y) % 7 {
+                0 => [0.0, 1e-30, 0.0],
+                1 => [1e6 * (1.0 + noise), 7e5, 2e5],
+                _ => [noise, 0.5 * noise + 0.1, 3.0 * noise],
+            }
+        });
+        for compression in [
+            ExrCompression::Zip,
+            ExrCompression::Piz,
+            ExrCompression::None,
+        ] {
+            let n = Path::new("c.exr");
+            let opts = ExrWriteOptions {
+                compression,
+                ..Default::default()
+            };
+            let b = encode(&img, n, &opts).unwrap();
+            assert_eq!(
+                decode(&b, n, &Limits::default()).unwrap(),
+                img,
+                "{compression:?}"
+            );
+        }
+    }
+
+    #[test]
     fn half_overflow_errors_or_clamps() {
         let n = Path::new("big.exr");
         let mut img = sample();
@@ -349,6 +417,7 @@ mod tests {
         let opts = ExrWriteOptions {
             half: true,
             on_overflow: Overflow::Error,
+            ..Default::default()
         };
         let e = encode(&img, n, &opts).unwrap_err().to_string();
         assert!(
@@ -358,6 +427,7 @@ mod tests {
         let opts = ExrWriteOptions {
             half: true,
             on_overflow: Overflow::Clamp,
+            ..Default::default()
         };
         let back = decode(&encode(&img, n, &opts).unwrap(), n, &Limits::default()).unwrap();
         assert_eq!(back.get(1, 1), [HALF_MAX, HALF_MAX, 1.0]);

@@ -11,7 +11,7 @@ pub mod ldr;
 pub mod pfm;
 pub mod rgbe;
 
-pub use self::exr::{ExrWriteOptions, Overflow};
+pub use self::exr::{ExrCompression, ExrWriteOptions, Overflow};
 pub use self::ldr::{linear_to_sdr, sdr_to_linear};
 
 use crate::error::{Error, Result};
@@ -162,8 +162,13 @@ pub fn decode_sdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<SdrImage
 /// Writes an HDR image atomically; `.exr` (float32, ZIP), `.hdr`/`.pic` (RLE RGBE)
 /// or `.pfm` (little-endian RGB) by extension.
 pub fn write_hdr(path: &Path, img: &HdrImage) -> Result<()> {
+    write_hdr_with(path, img, &ExrWriteOptions::default())
+}
+
+/// [`write_hdr`] with the EXR options `exr` (other formats ignore them).
+pub fn write_hdr_with(path: &Path, img: &HdrImage, exr: &ExrWriteOptions) -> Result<()> {
     match Format::from_extension(path) {
-        Some(Format::Exr) => exr::write(path, img, &ExrWriteOptions::default()),
+        Some(Format::Exr) => exr::write(path, img, exr),
         Some(Format::Rgbe) => rgbe::write(path, img),
         Some(Format::Pfm) => pfm::write(path, img),
         Some(f @ (Format::Png | Format::Jpeg)) => Err(Error::Invalid(format!(
