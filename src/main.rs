@@ -936,7 +936,11 @@ fn real_main(cli: Cli) -> Result<()> {
                     );
                 }
                 if r.fusion_ms > 0.0 {
-                    println!("  fusion (light placement + fill): {:.2} ms", r.fusion_ms);
+                    println!(
+                        "  fusion (lights carried to the frame + fill): {:.2} ms; finding a probe \
+                         pair's lights {:.1} ms once per pair ({} pairs)",
+                        r.fusion_ms, r.pair_lights_ms, r.light_pairs
+                    );
                 }
                 println!(
                     "  probe load+preparation {:.1} ms once per probe; peak RSS {}",

@@ -185,7 +185,12 @@ fn predict(
     let mut used = scene.probes_by_distance(frame.pose.position);
     used.truncate(method.probes_needed());
     let lin = pipeline::linearize(sdr, scene);
-    pipeline::predict_frame(scene, frame, sdr, &lin, &used, &get, &params)
+    let pairs = pipeline::LightPairs::default();
+    let access = pipeline::ProbeAccess {
+        get: &get,
+        pairs: &pairs,
+    };
+    pipeline::predict_frame(scene, frame, sdr, &lin, &used, access, &params)
 }
 
 const METHODS: [Method; 4] = [Method::Warp, Method::Flow, Method::Hybrid, Method::Fusion];

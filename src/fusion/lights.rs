@@ -391,24 +391,25 @@ impl SkyView<'_> {
     }
 }
 
-/// The lights two probes (image and pose each) both see, placed in 3-D and carried
-/// to a frame with pose `frame`: direction in the frame's camera axes, power at
-/// its position and the brightest mean radiance a probe saw, for
-/// [`super::fuse_with_lights`]. `white` is the radiance at which the frame clips.
-pub fn lights_at_frame<'a>(
-    a: View<'a>,
-    b: View<'a>,
-    frame: &Pose,
-    white: f32,
-    p: &FusionParams,
-) -> Vec<FrameLight<'a>> {
+/// The lights two probes both see, placed in 3-D, each with the surface it lies
+/// on when the probes agree on one: everything about them that does not depend on
+/// the frame, so it is found once per probe pair and carried to every frame
+/// between them ([`PairLights::at_frame`]).
+#[derive(Clone, Debug, Default)]
+pub struct PairLights {
+    /// Each light, with its surface (`None`: carried by power only).
+    pub lights: Vec<(PlacedLight, Option<Surface>)>,
+}
+
+/// The lights two probes (image and pose each) both see, placed in 3-D, with their
+/// surfaces. `white` is the radiance at which the frames clip.
+pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights {
     let find = |img: &HdrImage, pose: &Pose| {
         find_lights(img, pose, white, p.min_core_px, p.light_join_deg)
     };
     let (la, lb) = (find(a.0, a.1), find(b.0, b.1));
     let (pa, pb) = (a.1.position, b.1.position);
-    let to_frame = frame.world_from_camera.transpose();
-    let mut placed = Vec::new();
+    let mut lights = Vec::new();
     for l in triangulate(&la, pa, &lb, pb, p.max_gap_rel * pa.distance(pb)) {
         // Two probes that disagree on the light's intensity (power times squared
         // distance) saw different parts of it or different lights: the
@@ -416,17 +417,8 @@ pub fn lights_at_frame<'a>(
         if !l.consistent(p.max_intensity_ratio) {
             continue;
         }
-        let (d, mut pw) = l.seen_from(frame.position);
-        // A frame taken at a probe (within 1 mm) sees the light exactly as that
-        // probe did: no extrapolation from the other one.
-        let at = |q: Vec3| distance_m(q, frame.position) < 1e-3;
-        if at(pa) {
-            pw = l.seen[0].0;
-        } else if at(pb) {
-            pw = l.seen[1].0;
-        }
         let (la, lb) = (&la[l.from.0], &lb[l.from.1]);
-        let view = (p.surface_px > 0 && la.pixels.len().min(lb.pixels.len()) >= p.surface_px)
+        let surface = (p.surface_px > 0 && la.pixels.len().min(lb.pixels.len()) >= p.surface_px)
             .then(|| {
                 let point = if l.at_infinity {
                     Vec3::ZERO
@@ -436,19 +428,56 @@ pub fn lights_at_frame<'a>(
                 fit_surface(a, la, b, lb, point)
             })
             .filter(|&(_, e)| e <= p.max_surface_err)
-            .map(|(surface, _)| LightView {
-                surface,
-                probes: [a, b],
-                frame: *frame,
-            });
-        placed.push(FrameLight {
-            dir: to_frame * d,
-            power: pw,
-            radiance: l.radiance[0].max(l.radiance[1]),
-            view,
-        });
+            .map(|(surface, _)| surface);
+        lights.push((l, surface));
     }
-    placed
+    PairLights { lights }
+}
+
+impl PairLights {
+    /// The lights carried to a frame with pose `frame`: direction in the frame's
+    /// camera axes, power at its position and the brightest mean radiance a probe
+    /// saw, for [`super::fuse_with_lights`]. `a` and `b` are the probes the lights
+    /// were found in, in the same order.
+    pub fn at_frame<'a>(&self, a: View<'a>, b: View<'a>, frame: &Pose) -> Vec<FrameLight<'a>> {
+        let (pa, pb) = (a.1.position, b.1.position);
+        let to_frame = frame.world_from_camera.transpose();
+        self.lights
+            .iter()
+            .map(|(l, surface)| {
+                let (d, mut pw) = l.seen_from(frame.position);
+                // A frame taken at a probe (within 1 mm) sees the light exactly as
+                // that probe did: no extrapolation from the other one.
+                let at = |q: Vec3| distance_m(q, frame.position) < 1e-3;
+                if at(pa) {
+                    pw = l.seen[0].0;
+                } else if at(pb) {
+                    pw = l.seen[1].0;
+                }
+                FrameLight {
+                    dir: to_frame * d,
+                    power: pw,
+                    radiance: l.radiance[0].max(l.radiance[1]),
+                    view: surface.map(|surface| LightView {
+                        surface,
+                        probes: [a, b],
+                        frame: *frame,
+                    }),
+                }
+            })
+            .collect()
+    }
+}
+
+/// [`pair_lights`] carried to one frame ([`PairLights::at_frame`]).
+pub fn lights_at_frame<'a>(
+    a: View<'a>,
+    b: View<'a>,
+    frame: &Pose,
+    white: f32,
+    p: &FusionParams,
+) -> Vec<FrameLight<'a>> {
+    pair_lights(a, b, white, p).at_frame(a, b, frame)
 }
 
 #[cfg(test)]
@@ -790,5 +819,34 @@ pub(crate) mod tests {
         // Only pixels along the panel's edge, sampled between pixels, miss.
         assert!(close as f64 > 0.85 * lit as f64, "{close} of {lit}");
         assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
+    }
+
+    #[test]
+    fn a_pairs_lights_found_once_serve_every_frame() {
+        let (w, h) = (128, 64);
+        let (a, b) = (
+            upright(Vec3::new(0.0, 0.0, 1.5)),
+            upright(Vec3::new(2.2, 0.3, 1.5)),
+        );
+        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let p = FusionParams::default();
+        let pair = pair_lights((&ia, &a), (&ib, &b), 2.0, &p);
+        assert!(!pair.lights.is_empty());
+        assert!(pair.lights.iter().all(|(_, s)| s.is_some()));
+        for at in [
+            Vec3::new(1.1, 0.6, 1.5),
+            Vec3::new(0.4, -0.2, 1.4),
+            a.position,
+        ] {
+            let frame = upright(at);
+            let once = pair.at_frame((&ia, &a), (&ib, &b), &frame);
+            let each = lights_at_frame((&ia, &a), (&ib, &b), &frame, 2.0, &p);
+            assert_eq!(once.len(), each.len());
+            for (x, y) in once.iter().zip(&each) {
+                assert_eq!((x.dir, x.power, x.radiance), (y.dir, y.power, y.radiance));
+                assert_eq!(x.view.map(|v| v.surface), y.view.map(|v| v.surface));
+                assert_eq!(x.view.map(|v| v.frame.position), Some(at));
+            }
+        }
     }
 }

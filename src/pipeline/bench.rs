@@ -41,6 +41,13 @@ pub struct BenchReport {
     pub fusion_ms: f64,
     /// One-off cost of loading and preparing a probe, in ms.
     pub probe_prepare_ms: f64,
+    /// One-off cost of finding and placing the lights of a probe pair (fusion), in
+    /// ms, and how many pairs the frames use; the untimed first pass pays it.
+    #[serde(default)]
+    pub pair_lights_ms: f64,
+    /// Probe pairs whose lights were found.
+    #[serde(default)]
+    pub light_pairs: usize,
     /// Peak resident memory of the process in MiB (Linux VmHWM), if known.
     pub peak_rss_mib: Option<f64>,
     /// Mean scores of the last repetition's predictions against the frames' ground
@@ -132,6 +139,11 @@ pub fn bench_scored(
                 .clone()
                 .map_err(Error::Invalid)
         };
+        let pairs = super::LightPairs::default();
+        let access = super::ProbeAccess {
+            get: &get_probe,
+            pairs: &pairs,
+        };
         // Frames are read (untimed) when they are predicted, one at a time as in a
         // run: holding every frame would dominate the peak memory at large sizes.
         let load = |f: &crate::scene::Frame| -> Result<_> {
@@ -150,7 +162,7 @@ pub fn bench_scored(
         for (f, used) in &inputs {
             let (sdr, lin) = load(f)?;
             size.get_or_insert((sdr.width(), sdr.height()));
-            predict_frame(scene, f, &sdr, &lin, used, &get_probe, params)?;
+            predict_frame(scene, f, &sdr, &lin, used, access, params)?;
         }
         let mut times = Vec::new();
         let mut warp_stages = WarpTimings::default();
@@ -164,8 +176,7 @@ pub fn bench_scored(
                 let (sdr, lin) = load(f)?;
                 let c0 = thread_cpu_ns();
                 let t = Instant::now();
-                let (pred, wr, fr, fu) =
-                    predict_frame(scene, f, &sdr, &lin, used, &get_probe, params)?;
+                let (pred, wr, fr, fu) = predict_frame(scene, f, &sdr, &lin, used, access, params)?;
                 times.push(t.elapsed().as_secs_f64() * 1e3);
                 cpu_ns = match (cpu_ns, c0, thread_cpu_ns()) {
                     (Some(acc), Some(a), Some(b)) => Some(acc + b.saturating_sub(a)),
@@ -235,6 +246,15 @@ pub fn bench_scored(
             } else {
                 0.0
             },
+            pair_lights_ms: {
+                let (ms, k) = pairs.spent();
+                if k > 0 {
+                    ms / k as f64
+                } else {
+                    0.0
+                }
+            },
+            light_pairs: pairs.spent().1,
             peak_rss_mib: peak_rss_mib(),
             quality: crate::eval::Metrics::mean(&scores),
         })

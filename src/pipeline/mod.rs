@@ -13,15 +13,16 @@ pub mod sweep;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource};
-use crate::fusion::lights::lights_at_frame;
+use crate::fusion::lights::{pair_lights, PairLights};
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 /// Methods that predict a probe per frame.
@@ -348,6 +349,11 @@ fn run_named(
     };
     let done = AtomicUsize::new(0);
     let total = scene.frames.len();
+    let pairs = LightPairs::default();
+    let access = ProbeAccess {
+        get: &get_probe,
+        pairs: &pairs,
+    };
     let compute = |frame: &Frame, used: &[usize], fp: &str| -> Result<FrameRecord> {
         let probe_meta = &scene.probes[used[0]];
         let out = out_dir.join(format!("{}.exr", frame.id));
@@ -360,7 +366,7 @@ fn run_named(
         let t = Instant::now();
         let lin = linearize(&sdr, scene);
         let (img, warp_report, flow_report, fusion_report) =
-            predict_frame(scene, frame, &sdr, &lin, used, &get_probe, params)?;
+            predict_frame(scene, frame, &sdr, &lin, used, access, params)?;
         let total_ms = t.elapsed().as_secs_f64() * 1e3;
         drop((sdr, lin));
         let exr = io::ExrWriteOptions {
@@ -471,15 +477,62 @@ pub fn run_shard(
     )
 }
 
+/// The lights of probe pairs ([`PairLights`]), found once per ordered pair of probe
+/// indices and shared by every frame between the two (a run's white point and
+/// fusion settings do not change): fitting a light's surface is the costliest part
+/// of fusion and does not depend on the frame.
+#[derive(Default)]
+pub struct LightPairs {
+    cells: Mutex<HashMap<(usize, usize), PairCell>>,
+    spent: Mutex<(f64, usize)>,
+}
+
+/// One pair's lights, filled by the first frame that needs them.
+type PairCell = Arc<OnceLock<Arc<PairLights>>>;
+
+impl LightPairs {
+    /// The lights of probes `(a, b)`, made by `make` the first time they are asked for.
+    pub fn get(&self, key: (usize, usize), make: impl FnOnce() -> PairLights) -> Arc<PairLights> {
+        let cell = {
+            let mut cells = self.cells.lock().unwrap_or_else(|e| e.into_inner());
+            cells.entry(key).or_default().clone()
+        };
+        cell.get_or_init(|| {
+            let t = Instant::now();
+            let made = Arc::new(make());
+            let mut spent = self.spent.lock().unwrap_or_else(|e| e.into_inner());
+            spent.0 += t.elapsed().as_secs_f64() * 1e3;
+            spent.1 += 1;
+            made
+        })
+        .clone()
+    }
+
+    /// Time spent finding pairs' lights (ms) and how many pairs.
+    pub fn spent(&self) -> (f64, usize) {
+        *self.spent.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// Where a frame's probes come from: each prepared once, by index, and the lights
+/// of each pair of them found once.
+#[derive(Clone, Copy)]
+pub struct ProbeAccess<'a> {
+    /// The prepared probe of a scene index, with the count of repaired pixels.
+    pub get: &'a (dyn Fn(usize) -> Result<(Arc<PreparedProbe>, usize)> + Sync),
+    /// The lights of probe pairs.
+    pub pairs: &'a LightPairs,
+}
+
 /// Predicts one frame with the configured method from its SDR image `sdr`, its
-/// radiance `lin`, and the probes `used` (nearest first), prepared by `get_probe`.
+/// radiance `lin`, and the probes `used` (nearest first), read through `access`.
 pub fn predict_frame(
     scene: &Scene,
     frame: &Frame,
     sdr: &SdrImage,
     lin: &HdrImage,
     used: &[usize],
-    get_probe: &(dyn Fn(usize) -> Result<(Arc<PreparedProbe>, usize)> + Sync),
+    access: ProbeAccess,
     params: &RunParams,
 ) -> Result<(
     HdrImage,
@@ -488,6 +541,7 @@ pub fn predict_frame(
     Option<FusionReport>,
 )> {
     let (w, h) = (sdr.width(), sdr.height());
+    let (get_probe, pairs) = (access.get, access.pairs);
     if params.method == Method::Fusion {
         if params.fusion_base == Method::Fusion {
             return Err(Error::Invalid(
@@ -506,7 +560,7 @@ pub fn predict_frame(
         base.flow.clip_code = params.fusion.clip_code;
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
-        let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, get_probe, &base)?;
+        let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, access, &base)?;
         let white = scene
             .response
             .decode(params.fusion.clip_code as f32 / 255.0)
@@ -522,13 +576,11 @@ pub fn predict_frame(
         }
         let mut placed = Vec::new();
         if params.fusion.place_lights && probes.len() >= 2 {
-            placed = lights_at_frame(
-                view(&probes[0]),
-                view(&probes[1]),
-                &frame.pose,
-                white,
-                &params.fusion,
-            );
+            let (a, b) = (view(&probes[0]), view(&probes[1]));
+            let pair = pairs.get((used[0], used[1]), || {
+                pair_lights(a, b, white, &params.fusion)
+            });
+            placed = pair.at_frame(a, b, &frame.pose);
         }
         // Far sources (sky through a window) are looked up in the nearest
         // `far_probes` probes.
@@ -616,4 +668,25 @@ pub fn existing_prediction(out_dir: &Path, frame: &Frame) -> Result<PathBuf> {
         )));
     }
     Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pairs_lights_are_made_once_per_ordered_pair() {
+        let pairs = LightPairs::default();
+        let made = AtomicUsize::new(0);
+        let make = || {
+            made.fetch_add(1, Ordering::SeqCst);
+            PairLights::default()
+        };
+        use rayon::prelude::*;
+        (0..64).into_par_iter().for_each(|k| {
+            pairs.get((k % 2, 1 - k % 2), make);
+        });
+        assert_eq!(made.load(Ordering::SeqCst), 2);
+        assert_eq!(pairs.spent().1, 2);
+    }
 }
