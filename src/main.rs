@@ -214,9 +214,9 @@ enum Cmd {
         /// calibrate`) instead of trusting the scene file's.
         #[arg(long)]
         calibrate: bool,
-        /// Compression of the per-frame EXR files: ZIP is the smallest (a quarter
-        /// of the raw size for kitchen at 7776x3888), PIZ writes 3x faster at 1.2x
-        /// ZIP's size, none is the fastest.
+        /// Compression of the per-frame EXR files. On lumiprobe's outputs ZIP is
+        /// the smallest (a quarter of the raw size for kitchen at 7776x3888) and
+        /// PIZ writes 3x faster at 1.2x ZIP's size; none is the fastest.
         #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
         exr_compression: lumiprobe::image::io::ExrCompression,
         #[command(flatten)]

@@ -38,7 +38,8 @@ pub struct FlowMethodParams {
     /// Radius of the box window over which the colour term is averaged (0 = per pixel).
     pub dc_radius: usize,
     /// Seam-cost weight, relative to clipped pixels, where the SDR frame measured
-    /// the scene (did not clip). There the colour term already tells the labels
+    /// the scene (did not clip); it changes labels only with `measured_decides`
+    /// off, since otherwise measured pixels keep their cheapest label. There the colour term already tells the labels
     /// apart, so smoothness should barely override it; in clipped regions the
     /// colour term is blind and the seam cost alone keeps light sources whole.
     pub seam_measured: f32,
@@ -306,6 +307,19 @@ fn fuse(
         return Err(Error::Invalid(
             "linearised frame and frame differ in size".into(),
         ));
+    }
+    for (name, v) in [
+        ("SDR label cost", p.sdr_cost),
+        ("lambda", p.lambda),
+        ("colour-term weight", p.dc_weight),
+        ("clipped colour-term weight", p.clipped_dc_weight),
+        ("clipped Potts cost", p.clipped_potts),
+    ] {
+        if v.is_nan() || v < 0.0 {
+            return Err(Error::Invalid(format!(
+                "flow method: {name} is {v}; it must be a number >= 0"
+            )));
+        }
     }
     let mut timings = FlowTimings::default();
     let t = Instant::now();
@@ -1004,6 +1018,30 @@ mod tests {
         let (out, _) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &pulled).unwrap();
         assert!(share(&out, 50.0, false) > 0.9);
         assert!(ring_exact(&out) < 0.5, "{}", ring_exact(&out));
+    }
+
+    #[test]
+    fn a_nan_or_negative_cost_is_an_error_naming_it() {
+        let (sdr, lin, resp) = frame();
+        let src = source(&lin, |_, _| 50.0);
+        let sources = [Source {
+            name: "probe".into(),
+            image: &src,
+            distance_m: 1.0,
+        }];
+        for p in [
+            FlowMethodParams {
+                sdr_cost: f32::NAN,
+                ..Default::default()
+            },
+            FlowMethodParams {
+                sdr_cost: -1.0,
+                ..Default::default()
+            },
+        ] {
+            let e = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap_err();
+            assert!(e.to_string().contains("SDR label cost"), "{e}");
+        }
     }
 
     #[test]
