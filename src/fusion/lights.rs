@@ -760,14 +760,20 @@ pub(crate) mod tests {
         }
     }
 
-    #[test]
-    fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
-        let (w, h) = (256, 128);
+    /// Two upright probes 2.2 m apart under the ceiling panel, and their panoramas.
+    fn two_probes(w: usize, h: usize) -> (Pose, Pose, HdrImage, HdrImage) {
         let (a, b) = (
             upright(Vec3::new(0.0, 0.0, 1.5)),
             upright(Vec3::new(2.2, 0.3, 1.5)),
         );
         let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        (a, b, ia, ib)
+    }
+
+    #[test]
+    fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
+        let (w, h) = (256, 128);
+        let (a, b, ia, ib) = two_probes(w, h);
         let white = 2.0;
         let (la, lb) = (
             find_lights(&ia, &a, white, 3, 0.7),
@@ -823,12 +829,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_pairs_lights_found_once_serve_every_frame() {
-        let (w, h) = (128, 64);
-        let (a, b) = (
-            upright(Vec3::new(0.0, 0.0, 1.5)),
-            upright(Vec3::new(2.2, 0.3, 1.5)),
-        );
-        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let (a, b, ia, ib) = two_probes(128, 64);
         let p = FusionParams::default();
         let pair = pair_lights((&ia, &a), (&ib, &b), 2.0, &p);
         assert!(!pair.lights.is_empty());
