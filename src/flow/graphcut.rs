@@ -545,15 +545,21 @@ pub fn argmin_labels(e: &GridEnergy) -> Vec<u8> {
     let l = e.labels.max(1);
     let mut out = vec![0u8; e.width * e.height];
     for (p, costs) in e.data.chunks_exact(l).take(out.len()).enumerate() {
-        let mut best = (0usize, f32::INFINITY);
-        for (k, &d) in costs.iter().enumerate().take(256) {
-            if d < best.1 {
-                best = (k, d);
-            }
-        }
-        out[p] = best.0 as u8;
+        out[p] = cheapest_label(costs) as u8;
     }
     out
+}
+
+/// The first of the (at most 256) labels with the lowest data cost in `costs`
+/// (0 when none is below infinity).
+pub(crate) fn cheapest_label(costs: &[f32]) -> usize {
+    let mut best = (0usize, f32::INFINITY);
+    for (k, &d) in costs.iter().enumerate().take(256) {
+        if d < best.1 {
+            best = (k, d);
+        }
+    }
+    best.0
 }
 
 /// Maximum flow / minimum cut (Boykov & Kolmogorov 2004) on a general graph with

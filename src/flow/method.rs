@@ -4,7 +4,7 @@
 //! "left probe", "right probe" and "SDR frame".
 
 use super::dense::{confidence, pano_flow, warp_backward, FlowField, FlowParams};
-use super::graphcut::{argmin_labels, optimize, GridEnergy, Optimizer, INFEASIBLE};
+use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
 use crate::sphere::{sample_dir, sample_px, sample_px_by, uv_to_dir};
@@ -38,10 +38,11 @@ pub struct FlowMethodParams {
     /// Radius of the box window over which the colour term is averaged (0 = per pixel).
     pub dc_radius: usize,
     /// Seam-cost weight, relative to clipped pixels, where the SDR frame measured
-    /// the scene (did not clip); it changes labels only with `measured_decides`
-    /// off, since otherwise measured pixels keep their cheapest label. There the colour term already tells the labels
+    /// the scene (did not clip). There the colour term already tells the labels
     /// apart, so smoothness should barely override it; in clipped regions the
-    /// colour term is blind and the seam cost alone keeps light sources whole.
+    /// colour term is blind and the seam cost alone keeps light sources whole. It
+    /// changes labels only with `measured_decides` off: otherwise measured pixels
+    /// keep their cheapest label.
     pub seam_measured: f32,
     /// Weight of the colour term where the frame clipped. There the frame only
     /// bounds the radiance from below, and a label darker than the clip level
@@ -575,7 +576,7 @@ fn fix_measured_labels(data: &mut [f32], clipped_px: &[bool], n_lab: usize) {
         if clipped {
             continue;
         }
-        let best = (0..n_lab).fold(0, |b, i| if d[i] < d[b] { i } else { b });
+        let best = cheapest_label(d);
         for (i, v) in d.iter_mut().enumerate() {
             if i != best {
                 *v = INFEASIBLE;

@@ -278,9 +278,9 @@ fn disagreement(src: View, pixels: &[u32], dst: View, surface: &Surface) -> f64 
 
 /// The surface through `point` on which two probes' views of a light (`la` seen
 /// by `a`, `lb` by `b`) agree best, with its disagreement (the median absolute
-/// log-luminance difference, averaged over both ways). Candidates: the plane level with the probes' horizon
-/// (ceilings, floors), the upright plane facing the probes (walls, windows), the
-/// plane facing them (anything tilted), and infinity.
+/// log-luminance difference, averaged over both ways). Candidates: the plane
+/// level with the probes' horizon (ceilings, floors), the upright plane facing the
+/// probes (walls, windows), the plane facing them (anything tilted), and infinity.
 pub fn fit_surface(a: View, la: &Light, b: View, lb: &Light, point: Vec3) -> (Surface, f64) {
     let up =
         (a.1.world_from_camera * Vec3::Y + b.1.world_from_camera * Vec3::Y).normalize_or_zero();

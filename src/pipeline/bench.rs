@@ -223,6 +223,7 @@ pub fn bench_scored(
         let mut sorted = times.clone();
         sorted.sort_by(f64::total_cmp);
         let size = size.unwrap_or((0, 0));
+        let (pair_ms, light_pairs) = pairs.spent();
         let (prep_ms, prepared) = *prep_total
             .lock()
             .map_err(|_| Error::Invalid("timer lock".into()))?;
@@ -246,15 +247,8 @@ pub fn bench_scored(
             } else {
                 0.0
             },
-            pair_lights_ms: {
-                let (ms, k) = pairs.spent();
-                if k > 0 {
-                    ms / k as f64
-                } else {
-                    0.0
-                }
-            },
-            light_pairs: pairs.spent().1,
+            pair_lights_ms: pair_ms / light_pairs.max(1) as f64,
+            light_pairs,
             peak_rss_mib: peak_rss_mib(),
             quality: crate::eval::Metrics::mean(&scores),
         })

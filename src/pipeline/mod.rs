@@ -349,6 +349,10 @@ fn run_named(
     };
     let done = AtomicUsize::new(0);
     let total = scene.frames.len();
+    let exr = io::ExrWriteOptions {
+        compression: params.exr_compression,
+        ..Default::default()
+    };
     let pairs = LightPairs::default();
     let access = ProbeAccess {
         get: &get_probe,
@@ -369,10 +373,6 @@ fn run_named(
             predict_frame(scene, frame, &sdr, &lin, used, access, params)?;
         let total_ms = t.elapsed().as_secs_f64() * 1e3;
         drop((sdr, lin));
-        let exr = io::ExrWriteOptions {
-            compression: params.exr_compression,
-            ..Default::default()
-        };
         io::write_hdr_with(&out, &img, &exr)?;
         let rec = FrameRecord {
             id: frame.id.clone(),
