@@ -757,7 +757,9 @@ pub fn fuse_with_lights(
     // A region with light left to place but no fully clipped pixel (a light every
     // pixel of which kept a channel, e.g. through JPEG chroma bleeding) places it
     // in its partially clipped pixels where the shifted estimate is bright (all of
-    // them if none is), so the light is never lost.
+    // them if none is), so the light is never lost. Such a promoted pixel keeps
+    // the channels coded below `BLEED_CODE`: those are measurements (a sunlit wall
+    // clipped in red only), which the light's colour must not replace.
     let mut has_full = vec![false; n];
     let mut has_bright_partial = vec![false; n];
     for i in 0..w * h {
@@ -775,6 +777,7 @@ pub fn fuse_with_lights(
         .map(|o| !has_full[o] && target_power[o] > 1.05 * partial_power[o])
         .collect();
     let mut full_area = vec![0.0f64; n];
+    let mut promoted = vec![false; w * h];
     for i in 0..w * h {
         if lab[i] == u32::MAX {
             continue;
@@ -785,6 +788,7 @@ pub fn fuse_with_lights(
             && (!has_bright_partial[o] || luminance(shifted(i)) > white)
         {
             kinds[i] = Kind::Full;
+            promoted[i] = true;
             // What the pixel carried as a partial pixel (its value in `out`).
             let v = out.get(i % w, i / w);
             partial_power[o] -= (luminance(v) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
@@ -824,6 +828,17 @@ pub fn fuse_with_lights(
             }
         }
     }
+    // A promoted pixel's channels coded below `BLEED_CODE` stay as measured.
+    let keep_measured = |v: &mut [f32; 3], i: usize| {
+        if promoted[i] {
+            let s = sdr_linear.get(i % w, i / w);
+            for k in 0..3 {
+                if sdr.data()[3 * i + k] < BLEED_CODE {
+                    v[k] = s[k];
+                }
+            }
+        }
+    };
     let rest: Vec<f64> = (0..n)
         .map(|o| (target_power[o] - partial_power[o] - carried[o]).max(0.0))
         .collect();
@@ -850,6 +865,7 @@ pub fn fuse_with_lights(
                 for k in 0..3 {
                     v[k] = (colour[k] * target / lc).max(s[k]);
                 }
+                keep_measured(&mut v, i);
                 out.set(x, y, v);
                 continue;
             }
@@ -880,6 +896,7 @@ pub fn fuse_with_lights(
                 v = m;
             }
         }
+        keep_measured(&mut v, i);
         out.set(x, y, v);
     }
     // Power above the white point placed in each region, in one pass.
@@ -1200,6 +1217,41 @@ mod tests {
                 assert!((v[0] - 1.12).abs() < 0.01, "({x}, {y}): red {}", v[0]);
             }
         }
+    }
+
+    #[test]
+    fn a_light_placed_in_partly_clipped_pixels_keeps_their_measured_channels() {
+        let (w, h) = (64, 32);
+        // The sunlit orange wall, clipped in red only, and an estimate from a far
+        // probe that puts a small bluish-white light over it: the region has no
+        // fully clipped pixel, so the light is placed in its partial pixels.
+        let (sdr, lin) = orange_wall(w, h);
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if (28..32).contains(&x) && (13..16).contains(&y) {
+                [3.0, 3.2, 4.0]
+            } else if (20..40).contains(&x) && (10..20).contains(&y) {
+                [1.12, 0.7, 0.1]
+            } else {
+                [0.2, 0.2, 0.2]
+            }
+        });
+        let p = FusionParams {
+            transfer: Transfer::Power,
+            ..Default::default()
+        };
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
+        let mut brighter = 0;
+        for y in 10..20 {
+            for x in 20..40 {
+                let v = out.get(x, y);
+                assert_eq!((v[1], v[2]), (0.7, 0.1), "({x}, {y}): {v:?}");
+                if v[0] > 1.2 {
+                    brighter += 1;
+                }
+            }
+        }
+        // The light went into the clipped red channel of the pixels under it.
+        assert!(brighter >= 4, "{brighter} pixels took the light");
     }
 
     #[test]
