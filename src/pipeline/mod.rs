@@ -213,9 +213,37 @@ pub(crate) fn fingerprint(parts: &[String]) -> String {
     format!("{h:016x}")
 }
 
+/// The program that computes the frames: its version and a hash of the running
+/// executable, so that a rebuilt or upgraded lumiprobe recomputes frames an older
+/// build made instead of keeping them (the version alone does not change between
+/// builds). The version alone when the executable cannot be read.
+fn program_stamp() -> &'static str {
+    static STAMP: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    STAMP.get_or_init(|| {
+        let version = env!("CARGO_PKG_VERSION");
+        match std::env::current_exe().and_then(std::fs::read) {
+            Ok(bytes) => {
+                // FNV-1a over 8-byte words: a build stamp, not a security hash.
+                let mut h: u64 = 0xcbf29ce484222325;
+                let mut words = bytes.chunks_exact(8);
+                for c in &mut words {
+                    h ^= u64::from_le_bytes(c.try_into().expect("8 bytes"));
+                    h = h.wrapping_mul(0x100000001b3);
+                }
+                for &b in words.remainder() {
+                    h ^= b as u64;
+                    h = h.wrapping_mul(0x100000001b3);
+                }
+                format!("{version} {h:016x}")
+            }
+            Err(_) => version.to_string(),
+        }
+    })
+}
+
 /// The probes `frame` uses (nearest first) and the fingerprint of everything its
 /// output depends on: settings, the frame's file, pose and radiometry, the probes'
-/// files and poses, and the program version.
+/// files and poses, and the program build ([`program_stamp`]).
 fn frame_inputs(
     scene: &Scene,
     frame: &Frame,
@@ -230,7 +258,7 @@ fn frame_inputs(
         format!("{:?}", frame.pose),
         // The frame's radiometry: a new response or gain changes every pixel.
         format!("{:?} {}", scene.response, scene.path_gain),
-        env!("CARGO_PKG_VERSION").to_string(),
+        program_stamp().to_string(),
     ];
     for &u in &used {
         let m = &scene.probes[u];
