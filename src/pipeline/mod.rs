@@ -213,28 +213,25 @@ pub(crate) fn fingerprint(parts: &[String]) -> String {
     format!("{h:016x}")
 }
 
-/// The program that computes the frames: its version and a hash of the running
-/// executable, so that a rebuilt or upgraded lumiprobe recomputes frames an older
-/// build made instead of keeping them (the version alone does not change between
-/// builds). The version alone when the executable cannot be read.
+/// The program that computes the frames: its version and the running executable's
+/// size and modification time, so that a rebuilt or upgraded lumiprobe recomputes
+/// frames an older build made instead of keeping them (the version alone does not
+/// change between builds). Read once, without reading the file (through the C ABI
+/// the executable is the host program). The version alone when the executable
+/// cannot be found.
 fn program_stamp() -> &'static str {
     static STAMP: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     STAMP.get_or_init(|| {
         let version = env!("CARGO_PKG_VERSION");
-        match std::env::current_exe().and_then(std::fs::read) {
-            Ok(bytes) => {
-                // FNV-1a over 8-byte words: a build stamp, not a security hash.
-                let mut h: u64 = 0xcbf29ce484222325;
-                let mut words = bytes.chunks_exact(8);
-                for c in &mut words {
-                    h ^= u64::from_le_bytes(c.try_into().expect("8 bytes"));
-                    h = h.wrapping_mul(0x100000001b3);
-                }
-                for &b in words.remainder() {
-                    h ^= b as u64;
-                    h = h.wrapping_mul(0x100000001b3);
-                }
-                format!("{version} {h:016x}")
+        let meta = std::env::current_exe().and_then(std::fs::metadata);
+        match meta {
+            Ok(m) => {
+                let modified = m
+                    .modified()
+                    .ok()
+                    .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                    .map_or(0, |d| d.as_nanos());
+                format!("{version} {} {modified}", m.len())
             }
             Err(_) => version.to_string(),
         }
