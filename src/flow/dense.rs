@@ -186,9 +186,48 @@ pub fn pano_flow(a: &[u8], b: &[u8], w: usize, h: usize, p: &FlowParams) -> Resu
 /// `g / (g + texture_half)` from the gradient magnitude `g` of `gray` (the first
 /// image), since flow in uniform or saturated regions is a guess.
 pub fn confidence(fwd: &FlowField, bwd: &FlowField, gray: &[u8], p: &FlowParams) -> Vec<f32> {
+    confidence_with(
+        fwd,
+        bwd,
+        &texture_confidence(gray, fwd.width, fwd.height, p),
+        p,
+    )
+}
+
+/// The texture term of [`confidence`] per pixel of the `w x h` image `gray`:
+/// `g / (g + texture_half)`. It depends on the frame only, so a frame matched
+/// against several probes computes it once.
+pub fn texture_confidence(gray: &[u8], w: usize, h: usize, p: &FlowParams) -> Vec<f32> {
+    let half = p.texture_half.max(1e-3);
+    let mut out = vec![0.0f32; w * h];
+    use rayon::prelude::*;
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, line)| {
+            let g = |xx: i64, yy: i64| {
+                gray[(yy.clamp(0, h as i64 - 1) as usize) * w + xx.rem_euclid(w as i64) as usize]
+                    as f32
+            };
+            for (x, c) in line.iter_mut().enumerate() {
+                let (xi, yi) = (x as i64, y as i64);
+                let gx = 0.5 * (g(xi + 1, yi) - g(xi - 1, yi));
+                let gy = 0.5 * (g(xi, yi + 1) - g(xi, yi - 1));
+                let mag = gx.hypot(gy);
+                *c = mag / (mag + half);
+            }
+        });
+    out
+}
+
+/// [`confidence`] with its texture term given ([`texture_confidence`]).
+pub fn confidence_with(
+    fwd: &FlowField,
+    bwd: &FlowField,
+    texture: &[f32],
+    p: &FlowParams,
+) -> Vec<f32> {
     let (w, h) = (fwd.width, fwd.height);
     let sigma = p.fb_sigma.max(1e-3);
-    let half = p.texture_half.max(1e-3);
     let mut out = vec![0.0f32; w * h];
     use rayon::prelude::*;
     out.par_chunks_mut(w.max(1))
@@ -199,16 +238,7 @@ pub fn confidence(fwd: &FlowField, bwd: &FlowField, gray: &[u8], p: &FlowParams)
                 let (bx, by) = bwd.sample(x as f32 + dx, y as f32 + dy);
                 let e = (dx + bx).hypot(dy + by);
                 let c_fb = (-(e / sigma).powi(2)).exp();
-                let g = |xx: i64, yy: i64| {
-                    gray[(yy.clamp(0, h as i64 - 1) as usize) * w
-                        + xx.rem_euclid(w as i64) as usize] as f32
-                };
-                let (xi, yi) = (x as i64, y as i64);
-                let gx = 0.5 * (g(xi + 1, yi) - g(xi - 1, yi));
-                let gy = 0.5 * (g(xi, yi + 1) - g(xi, yi - 1));
-                let mag = gx.hypot(gy);
-                let c_tex = mag / (mag + half);
-                let c = c_fb * c_tex;
+                let c = c_fb * texture[y * w + x];
                 line[x] = if c.is_finite() {
                     c.clamp(0.0, 1.0)
                 } else {

@@ -3,7 +3,9 @@
 //! frame with dense optical flow and fused per pixel by a graph cut whose labels are
 //! "left probe", "right probe" and "SDR frame".
 
-use super::dense::{confidence, pano_flow, warp_backward, FlowField, FlowParams};
+use super::dense::{
+    confidence_with, pano_flow, texture_confidence, warp_backward, FlowField, FlowParams,
+};
 use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
@@ -356,11 +358,12 @@ fn fuse(
     let mut warped = Vec::with_capacity(n_src);
     let mut warped_disp = Vec::with_capacity(n_src);
     let mut confs = Vec::with_capacity(n_src);
+    let texture = texture_confidence(&frame_gray, w, h, &p.flow);
     for (i, (fwd, bwd)) in flows.iter().enumerate() {
         let wi = warp_backward(sources[i].image, fwd)?;
         warped_disp.push(camera_display(&wi, &lut));
         warped.push(wi);
-        confs.push(confidence(fwd, bwd, &frame_gray, &p.flow));
+        confs.push(confidence_with(fwd, bwd, &texture, &p.flow));
     }
     // In f64 and capped: infinite or huge distances must not make the prior NaN.
     let dist = |s: &Source| (s.distance_m.max(0.0) as f64).min(f32::MAX as f64);
