@@ -22,6 +22,8 @@ pub struct Light {
     pub solid_angle: f64,
     /// Indices (row-major) of its pixels above the threshold.
     pub pixels: Vec<u32>,
+    /// Brightest luminance above the threshold among its pixels.
+    pub peak: f64,
 }
 
 /// A light seen by two probes and placed in the world.
@@ -39,6 +41,9 @@ pub struct PlacedLight {
     /// angle). Radiance does not change along rays, so no part of the source can
     /// look brighter than this from anywhere, unless a probe did not resolve it.
     pub radiance: [f64; 2],
+    /// Brightest radiance above the threshold each probe saw in it
+    /// ([`Light::peak`]): no part of the source is brighter from anywhere.
+    pub peak: [f64; 2],
     /// Indices of the two probes' [`Light`]s it was placed from.
     pub from: (usize, usize),
 }
@@ -107,14 +112,16 @@ pub fn find_lights(
     let r = (w as f32 * join_deg.max(0.0) / 360.0).round() as usize;
     let joined = super::dilate(&bright, w, h, r);
     let (lab, n) = components(&joined, w, h);
-    let mut acc = vec![(Vec3::ZERO, 0.0f64, Vec::new(), 0.0f64); n];
+    let mut acc = vec![(Vec3::ZERO, 0.0f64, Vec::new(), 0.0f64, 0.0f64); n];
     for (i, &l) in lab.iter().enumerate() {
         if l == u32::MAX || !bright[i] {
             continue;
         }
         let (x, y) = (i % w, i / w);
-        let m = ((luminance(img.get(x, y)) - threshold) as f64) * sa[y] as f64;
+        let excess = (luminance(img.get(x, y)) - threshold) as f64;
+        let m = excess * sa[y] as f64;
         let a = &mut acc[l as usize];
+        a.4 = a.4.max(excess);
         a.0 += pose.world_from_camera * pixel_to_dir(x, y, w, h) * m as f32;
         a.1 += m;
         a.2.push(i as u32);
@@ -127,6 +134,7 @@ pub fn find_lights(
             power: a.1,
             solid_angle: a.3,
             pixels: a.2,
+            peak: a.4,
         })
         .collect()
 }
@@ -173,6 +181,7 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
         used_a[i] = true;
         used_b[j] = true;
         let radiance = [a[i].radiance(), b[j].radiance()];
+        let peak = [a[i].peak, b[j].peak];
         out.push(match pos {
             Some(x) => PlacedLight {
                 position: x,
@@ -180,6 +189,7 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
                 dir: Vec3::ZERO,
                 seen: [(a[i].power, x.distance(pa)), (b[j].power, x.distance(pb))],
                 radiance,
+                peak,
                 from: (i, j),
             },
             None => PlacedLight {
@@ -188,6 +198,7 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
                 dir: (a[i].dir + b[j].dir).normalize(),
                 seen: [(a[i].power, 1.0), (b[j].power, 1.0)],
                 radiance,
+                peak,
                 from: (i, j),
             },
         });
@@ -458,6 +469,7 @@ impl PairLights {
                     dir: to_frame * d,
                     power: pw,
                     radiance: l.radiance[0].max(l.radiance[1]),
+                    peak: l.peak[0].max(l.peak[1]),
                     view: surface.map(|surface| LightView {
                         surface,
                         probes: [a, b],
@@ -619,6 +631,7 @@ pub(crate) mod tests {
             dir: Vec3::ZERO,
             seen: [(4.0, 1.0), (0.3, 3.0)],
             radiance: [1.0, 1.0],
+            peak: [1.0, 1.0],
             from: (0, 0),
         };
         // Seen from 1.1 m: probe A (at 1 m) predicts 4 / 1.21, probe B (at 3 m)
@@ -687,8 +700,19 @@ pub(crate) mod tests {
 
     /// The panorama a camera with `pose` takes of [`ceiling_room`].
     pub(crate) fn render(pose: &Pose, w: usize, h: usize) -> HdrImage {
+        render_scene(pose, w, h, ceiling_room)
+    }
+
+    /// The panorama a camera with `pose` takes of `scene` (radiance from a point
+    /// along a direction).
+    pub(crate) fn render_scene(
+        pose: &Pose,
+        w: usize,
+        h: usize,
+        scene: impl Fn(Vec3, Vec3) -> [f32; 3] + Sync,
+    ) -> HdrImage {
         HdrImage::from_fn(w, h, |x, y| {
-            ceiling_room(
+            scene(
                 pose.position,
                 pose.world_from_camera * pixel_to_dir(x, y, w, h),
             )
