@@ -70,7 +70,9 @@ LpStatus lp_sh_project(const LpImage *img, float coeffs[27]);
 LpStatus lp_sh_irradiance(const float coeffs[27], const float n[3], float out_rgb[3]);
 
 /* Runs "warp", "flow", "hybrid" or "fusion" with default settings over a scene folder
- * (with poses.json), writing one HDR probe per frame into out_dir. Resumable. */
+ * (with poses.json), writing one HDR probe per frame into out_dir. Resumable: a rerun
+ * keeps frames made from the same inputs by the same host program (a rebuilt library
+ * of the same version does not count as a change; remove the frames to recompute). */
 LpStatus lp_run(const char *scene_dir, const char *out_dir, const char *method);
 
 /* ---- Probe sets: probes placed in the world, queried by position ---- */

@@ -259,7 +259,9 @@ pub unsafe extern "C" fn lp_sh_irradiance(
 
 /// Runs `method` ("warp", "flow", "hybrid" or "fusion") with default settings
 /// over the scene in `scene_dir` (a folder with `poses.json`), writing one probe
-/// per frame into `out_dir`. A rerun keeps frames already produced.
+/// per frame into `out_dir`. A rerun keeps frames already produced from the same
+/// inputs by the same host program (a rebuilt library of the same version does
+/// not count as a change: remove the frames to recompute them).
 #[no_mangle]
 pub unsafe extern "C" fn lp_run(
     scene_dir: *const c_char,

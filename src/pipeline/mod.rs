@@ -216,9 +216,10 @@ pub(crate) fn fingerprint(parts: &[String]) -> String {
 /// The program that computes the frames: its version and the running executable's
 /// size and modification time, so that a rebuilt or upgraded lumiprobe recomputes
 /// frames an older build made instead of keeping them (the version alone does not
-/// change between builds). Read once, without reading the file (through the C ABI
-/// the executable is the host program). The version alone when the executable
-/// cannot be found.
+/// change between builds). Read once, without reading the file. Through the C ABI
+/// the executable is the host program: there a rebuilt library of the same version
+/// keeps earlier frames (remove them to recompute), and a changed host recomputes
+/// them. The version alone when the executable cannot be found.
 fn program_stamp() -> &'static str {
     static STAMP: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     STAMP.get_or_init(|| {
