@@ -1228,23 +1228,43 @@ mod tests {
         let (sdr, lin) = orange_wall(w, h);
         // ... but the estimate has the sunlit part only over 12 columns and a
         // bluish shadow (red/green 0.86) over the rest of the region.
-        let est = HdrImage::from_fn(w, h, |x, y| {
-            if (10..20).contains(&y) && (20..32).contains(&x) {
+        let est = wall_estimate(w, h, (32..40, 10..20), [0.3, 0.35, 0.5]);
+        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        for v in wall_keeps_green_and_blue(&out) {
+            assert!((v[0] - 1.12).abs() < 0.01, "red {}", v[0]);
+        }
+    }
+
+    /// The estimate of [`orange_wall`]: the sunlit wall (red 1.12) with a patch
+    /// `(columns, rows)` of another colour.
+    fn wall_estimate(
+        w: usize,
+        h: usize,
+        patch: (std::ops::Range<usize>, std::ops::Range<usize>),
+        colour: [f32; 3],
+    ) -> HdrImage {
+        HdrImage::from_fn(w, h, |x, y| {
+            if patch.0.contains(&x) && patch.1.contains(&y) {
+                colour
+            } else if (20..40).contains(&x) && (10..20).contains(&y) {
                 [1.12, 0.7, 0.1]
-            } else if (10..20).contains(&y) && (32..40).contains(&x) {
-                [0.3, 0.35, 0.5]
             } else {
                 [0.2, 0.2, 0.2]
             }
-        });
-        let (out, _) = fuse(&sdr, &lin, &est, 1.0, &FusionParams::default()).unwrap();
+        })
+    }
+
+    /// The wall's pixels in `out`, asserting each kept its measured green and blue.
+    fn wall_keeps_green_and_blue(out: &HdrImage) -> Vec<[f32; 3]> {
+        let mut wall = Vec::new();
         for y in 10..20 {
             for x in 20..40 {
                 let v = out.get(x, y);
                 assert_eq!((v[1], v[2]), (0.7, 0.1), "({x}, {y}): {v:?}");
-                assert!((v[0] - 1.12).abs() < 0.01, "({x}, {y}): red {}", v[0]);
+                wall.push(v);
             }
         }
+        wall
     }
 
     #[test]
@@ -1254,31 +1274,15 @@ mod tests {
         // probe that puts a small bluish-white light over it: the region has no
         // fully clipped pixel, so the light is placed in its partial pixels.
         let (sdr, lin) = orange_wall(w, h);
-        let est = HdrImage::from_fn(w, h, |x, y| {
-            if (28..32).contains(&x) && (13..16).contains(&y) {
-                [3.0, 3.2, 4.0]
-            } else if (20..40).contains(&x) && (10..20).contains(&y) {
-                [1.12, 0.7, 0.1]
-            } else {
-                [0.2, 0.2, 0.2]
-            }
-        });
+        let est = wall_estimate(w, h, (28..32, 13..16), [3.0, 3.2, 4.0]);
         let p = FusionParams {
             transfer: Transfer::Power,
             ..Default::default()
         };
         let (out, _) = fuse(&sdr, &lin, &est, 1.0, &p).unwrap();
-        let mut brighter = 0;
-        for y in 10..20 {
-            for x in 20..40 {
-                let v = out.get(x, y);
-                assert_eq!((v[1], v[2]), (0.7, 0.1), "({x}, {y}): {v:?}");
-                if v[0] > 1.2 {
-                    brighter += 1;
-                }
-            }
-        }
+        let wall = wall_keeps_green_and_blue(&out);
         // The light went into the clipped red channel of the pixels under it.
+        let brighter = wall.iter().filter(|v| v[0] > 1.2).count();
         assert!(brighter >= 4, "{brighter} pixels took the light");
     }
 
