@@ -24,14 +24,27 @@ import os
 import sys
 
 
+def fresh(scene, out):
+    """Refuses an OUT that exists (a symlinked `path/` there would let new frames
+    overwrite the scene's own) or that is the scene itself."""
+    if os.path.lexists(out):
+        sys.exit(f"{out}: already exists; give a new folder (nothing written)")
+    if not os.path.isfile(os.path.join(scene, "poses.json")):
+        sys.exit(f"{scene}: no poses.json here")
+
+
 def link(src, dst):
     if not os.path.lexists(dst):
         os.symlink(os.path.abspath(src), dst)
 
 
 def probes(scene, out, keep):
+    fresh(scene, out)
     poses = json.load(open(os.path.join(scene, "poses.json")))
-    wanted = [int(k) for k in keep.split(",")]
+    try:
+        wanted = [int(k) for k in keep.split(",")]
+    except ValueError:
+        sys.exit(f"{keep}: not a comma-separated list of probe numbers")
     bad = [k for k in wanted if not 0 <= k < len(poses["probes"])]
     if bad:
         sys.exit(f"{scene}: no probe number {bad} (it has {len(poses['probes'])})")
@@ -43,12 +56,22 @@ def probes(scene, out, keep):
 
 
 def exposure(scene, out, factor):
+    fresh(scene, out)
+    try:
+        factor = float(factor)
+    except ValueError:
+        sys.exit(f"{factor}: not a number")
+    if not factor > 0 or factor == float("inf"):
+        sys.exit(f"{factor}: the gain factor must be a positive finite number")
     os.environ["OPENCV_IO_ENABLE_OPENEXR"] = "1"
-    import cv2
-    import numpy as np
+    try:
+        import cv2
+        import numpy as np
+    except ImportError:
+        sys.exit("needs numpy and OpenCV for Python (Debian: apt install python3-opencv)")
 
     poses = json.load(open(os.path.join(scene, "poses.json")))
-    gain = poses["camera"]["path_gain"] * float(factor)
+    gain = poses["camera"]["path_gain"] * factor
     poses["camera"]["path_gain"] = gain
     os.makedirs(os.path.join(out, "path"), exist_ok=True)
     link(os.path.join(scene, "probes"), os.path.join(out, "probes"))
@@ -63,7 +86,8 @@ def exposure(scene, out, factor):
         y = np.maximum(x, 0.0) ** (1.0 / 2.2)
         code = np.round(np.minimum(1.0, 1.08 * y / (1.0 + 0.08 * y)) * 255.0)
         jpg = os.path.join(out, "path", f["id"] + ".jpg")
-        cv2.imwrite(jpg, code.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        if not cv2.imwrite(jpg, code.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90]):
+            sys.exit(f"{jpg}: cannot write")
         link(truth, os.path.join(out, "path", f["id"] + "_gt.exr"))
     json.dump(poses, open(os.path.join(out, "poses.json"), "w"), indent=1)
 

@@ -42,7 +42,8 @@ pub struct PlacedLight {
     /// look brighter than this from anywhere, unless a probe did not resolve it.
     pub radiance: [f64; 2],
     /// Brightest radiance above the threshold each probe saw in it
-    /// ([`Light::peak`]): no part of the source is brighter from anywhere.
+    /// ([`Light::peak`]): no part of the source is brighter from anywhere, unless a
+    /// probe did not resolve it.
     pub peak: [f64; 2],
     /// Indices of the two probes' [`Light`]s it was placed from.
     pub from: (usize, usize),
@@ -447,8 +448,8 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
 
 impl PairLights {
     /// The lights carried to a frame with pose `frame`: direction in the frame's
-    /// camera axes, power at its position and the brightest mean radiance a probe
-    /// saw, for [`super::fuse_with_lights`]. `a` and `b` are the probes the lights
+    /// camera axes, power at its position, and the brightest mean and peak
+    /// radiance a probe saw, for [`super::fuse_with_lights`]. `a` and `b` are the probes the lights
     /// were found in, in the same order.
     pub fn at_frame<'a>(&self, a: View<'a>, b: View<'a>, frame: &Pose) -> Vec<FrameLight<'a>> {
         let (pa, pb) = (a.1.position, b.1.position);
@@ -700,19 +701,8 @@ pub(crate) mod tests {
 
     /// The panorama a camera with `pose` takes of [`ceiling_room`].
     pub(crate) fn render(pose: &Pose, w: usize, h: usize) -> HdrImage {
-        render_scene(pose, w, h, ceiling_room)
-    }
-
-    /// The panorama a camera with `pose` takes of `scene` (radiance from a point
-    /// along a direction).
-    pub(crate) fn render_scene(
-        pose: &Pose,
-        w: usize,
-        h: usize,
-        scene: impl Fn(Vec3, Vec3) -> [f32; 3] + Sync,
-    ) -> HdrImage {
         HdrImage::from_fn(w, h, |x, y| {
-            scene(
+            ceiling_room(
                 pose.position,
                 pose.world_from_camera * pixel_to_dir(x, y, w, h),
             )
