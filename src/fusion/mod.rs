@@ -787,7 +787,6 @@ pub fn fuse_with_lights(
         .map(|o| !has_full[o] && target_power[o] > 1.05 * partial_power[o])
         .collect();
     let mut full_area = vec![0.0f64; n];
-    let mut promoted = vec![false; w * h];
     for i in 0..w * h {
         if lab[i] == u32::MAX {
             continue;
@@ -798,7 +797,6 @@ pub fn fuse_with_lights(
             && (!has_bright_partial[o] || luminance(shifted(i)) > white)
         {
             kinds[i] = Kind::Full;
-            promoted[i] = true;
             // What the pixel carried as a partial pixel (its value in `out`).
             let v = out.get(i % w, i / w);
             partial_power[o] -= (luminance(v) as f64 - white as f64).max(0.0) * sa[i / w] as f64;
@@ -831,11 +829,7 @@ pub fn fuse_with_lights(
     // frame 16). No bound elsewhere: a far source's covered part need not hold its
     // sun.
     let mut missed_cap: Vec<Option<f64>> = (0..n)
-        .map(|o| {
-            view[o]
-                .filter(|_| anchor_peak[o] > 0.0)
-                .map(|_| anchor_peak[o])
-        })
+        .map(|o| (view[o].is_some() && anchor_peak[o] > 0.0).then_some(anchor_peak[o]))
         .collect();
     // What a light carries to each fully clipped pixel, looked up once.
     let mut full_radiance: HashMap<usize, [f32; 3]> = HashMap::new();
@@ -861,14 +855,13 @@ pub fn fuse_with_lights(
         }
     }
     // A promoted pixel's channels coded below `BLEED_CODE` (or the clip code, if
-    // lower) stay as measured.
+    // lower) stay as measured. Only promoted pixels have such channels: the others
+    // filled here clipped in every channel.
     let keep_measured = |v: &mut [f32; 3], i: usize| {
-        if promoted[i] {
-            let s = sdr_linear.get(i % w, i / w);
-            for k in 0..3 {
-                if sdr.data()[3 * i + k] < BLEED_CODE.min(p.clip_code) {
-                    v[k] = s[k];
-                }
+        let s = sdr_linear.get(i % w, i / w);
+        for k in 0..3 {
+            if sdr.data()[3 * i + k] < BLEED_CODE.min(p.clip_code) {
+                v[k] = s[k];
             }
         }
     };
