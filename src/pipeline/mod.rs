@@ -195,9 +195,14 @@ pub fn load_probe(
 /// Identifies a file's version for cache keys: path, size and modification time.
 pub(crate) fn file_stamp(p: &Path) -> String {
     match std::fs::metadata(p) {
-        Ok(m) => format!("{}:{}:{:?}", p.display(), m.len(), m.modified().ok()),
+        Ok(m) => format!("{}:{}", p.display(), size_and_time(&m)),
         Err(_) => format!("{}:missing", p.display()),
     }
+}
+
+/// A file's size and modification time, as stamps hold them.
+fn size_and_time(m: &std::fs::Metadata) -> String {
+    format!("{}:{:?}", m.len(), m.modified().ok())
 }
 
 /// FNV-1a 64 of the parts as 16 hex digits: a key for resume checks and caches.
@@ -224,16 +229,8 @@ fn program_stamp() -> &'static str {
     static STAMP: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     STAMP.get_or_init(|| {
         let version = env!("CARGO_PKG_VERSION");
-        let meta = std::env::current_exe().and_then(std::fs::metadata);
-        match meta {
-            Ok(m) => {
-                let modified = m
-                    .modified()
-                    .ok()
-                    .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-                    .map_or(0, |d| d.as_nanos());
-                format!("{version} {} {modified}", m.len())
-            }
+        match std::env::current_exe().and_then(std::fs::metadata) {
+            Ok(m) => format!("{version} {}", size_and_time(&m)),
             Err(_) => version.to_string(),
         }
     })
