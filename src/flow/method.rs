@@ -201,6 +201,24 @@ fn camera_display(img: &HdrImage, lut: &EncodeLut) -> Vec<f32> {
     img.data().iter().map(|&v| lut.encode(v)).collect()
 }
 
+/// The colour term Dc of one label at one pixel: the mean absolute display
+/// difference between the label (`label`, display units) and the frame (`frame`)
+/// over the three channels. A channel the frame clipped (`code >= clip_code`) only
+/// bounds the radiance from below, so there a label brighter than the frame costs
+/// nothing and only a darker one is charged.
+fn colour_cost(label: &[f32], frame: &[f32], code: &[u8], clip_code: u8) -> f32 {
+    (0..3)
+        .map(|k| {
+            if code[k] >= clip_code {
+                (frame[k] - label[k]).max(0.0)
+            } else {
+                (label[k] - frame[k]).abs()
+            }
+        })
+        .sum::<f32>()
+        / 3.0
+}
+
 /// Mean over a `(2r+1)^2` box, wrapping horizontally and clamping vertically.
 fn box_filter(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
     if r == 0 {
@@ -369,14 +387,17 @@ fn fuse(
     let dist = |s: &Source| (s.distance_m.max(0.0) as f64).min(f32::MAX as f64);
     let dist_sum: f64 = sources.iter().map(dist).sum();
     // Colour term per source: mean absolute display difference to the frame,
-    // optionally averaged over a box window (wrapping across the seam).
+    // optionally averaged over a box window (wrapping across the seam). A channel
+    // the frame clipped bounds the radiance from below only: a label brighter than
+    // it agrees with the frame, one darker contradicts it.
+    let codes = sdr.data();
     let dcs: Vec<Vec<f32>> = warped_disp
         .iter()
         .map(|wd| {
             let raw: Vec<f32> = (0..w * h)
                 .map(|px| {
                     let (d, f) = (&wd[3 * px..3 * px + 3], &frame_disp[3 * px..3 * px + 3]);
-                    ((d[0] - f[0]).abs() + (d[1] - f[1]).abs() + (d[2] - f[2]).abs()) / 3.0
+                    colour_cost(d, f, &codes[3 * px..3 * px + 3], p.clip_code)
                 })
                 .collect();
             box_filter(&raw, w, h, p.dc_radius)
@@ -880,6 +901,29 @@ mod tests {
             }
         }
         hit as f32 / n as f32
+    }
+
+    #[test]
+    fn a_clipped_channel_charges_only_labels_darker_than_the_frame() {
+        // Red clipped (code 255, display 1.0); green and blue measured.
+        let frame = [1.0, 0.5, 0.25];
+        let code = [255, 128, 64];
+        // A label brighter than the clip in red agrees with the frame there.
+        let bright = colour_cost(&[1.0, 0.5, 0.25], &frame, &code, 250);
+        let brighter = colour_cost(&[1.0, 0.5, 0.25], &[0.98, 0.5, 0.25], &code, 250);
+        assert_eq!(bright, 0.0);
+        assert_eq!(
+            brighter, 0.0,
+            "a label above a clipped channel costs nothing"
+        );
+        // One darker than the clip in red contradicts it.
+        let dark = colour_cost(&[0.7, 0.5, 0.25], &frame, &code, 250);
+        assert!((dark - 0.1).abs() < 1e-6, "{dark}");
+        // Measured channels are charged both ways.
+        let off = colour_cost(&[1.0, 0.8, 0.25], &frame, &code, 250);
+        assert!((off - 0.1).abs() < 1e-6, "{off}");
+        let off = colour_cost(&[1.0, 0.2, 0.25], &frame, &code, 250);
+        assert!((off - 0.1).abs() < 1e-6, "{off}");
     }
 
     #[test]
