@@ -638,8 +638,13 @@ pub fn predict_frame(
             for &u in used {
                 let (pp, _) = get_probe(u)?;
                 if params.method == Method::Hybrid {
-                    let (img, r) =
-                        warp::warp_frame(sdr, lin, &frame.pose, &pp, &params.warp, w, h)?;
+                    // The warp supplies probes here: where the frame clipped, its
+                    // bottom face holds the probe's own radiance.
+                    let wp = warp::WarpParams {
+                        bottom_bounded_by_frame: false,
+                        ..params.warp.clone()
+                    };
+                    let (img, r) = warp::warp_frame(sdr, lin, &frame.pose, &pp, &wp, w, h)?;
                     first_warp.get_or_insert(r);
                     warped.push(img);
                 }

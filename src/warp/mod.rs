@@ -91,6 +91,18 @@ pub struct WarpParams {
     pub pose_candidates: usize,
     /// How probes are turned into 8-bit images for matching.
     pub probe_tonemap: ProbeTonemap,
+    /// Where the frame clipped in the bottom face (which otherwise is the frame),
+    /// the output is the probe's radiance: at least the frame's (on, the warp
+    /// method's own output: the frame measured a lower bound there) or the probe's
+    /// alone (off: the hybrid, whose flow stage compares its sources with the frame,
+    /// and a source that copies the frame's measured channels would win that
+    /// comparison without having seen what clipped).
+    #[serde(default = "yes")]
+    pub bottom_bounded_by_frame: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn default_max_face_size() -> usize {
@@ -121,6 +133,7 @@ impl Default for WarpParams {
             candidates: CandidateMode::Pose,
             pose_candidates: 2,
             probe_tonemap: ProbeTonemap::Camera,
+            bottom_bounded_by_frame: true,
         }
     }
 }
@@ -740,7 +753,11 @@ fn stitch(
                                 // The true radiance is at least what the SDR shows; the
                                 // probe supplies the part above the white point.
                                 let f = sample_dir(hdr, rel * d);
-                                [v[0].max(f[0]), v[1].max(f[1]), v[2].max(f[2])]
+                                if p.bottom_bounded_by_frame {
+                                    [v[0].max(f[0]), v[1].max(f[1]), v[2].max(f[2])]
+                                } else {
+                                    f
+                                }
                             } else {
                                 v
                             }
@@ -948,6 +965,47 @@ mod tests {
                     out.get(x, y)[1] >= 1.0 - 1e-4,
                     "below the SDR bound at {x},{y}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn unbounded_bottom_face_gives_the_probes_own_radiance_where_the_frame_clipped() {
+        let (w, h) = (128, 64);
+        // A dark probe floor under a frame that clipped everywhere.
+        let probe_img = HdrImage::from_fn(w, h, |_, y| {
+            if y >= h - 4 {
+                [0.25, 0.5, 0.75]
+            } else {
+                [0.3, 0.3, 0.3]
+            }
+        });
+        let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
+        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
+        let probe = PreparedProbe::new(
+            Arc::new(probe_img),
+            pose(0.0),
+            ProbeTonemap::Camera,
+            &Response::Srgb,
+            1.0,
+        );
+        let run = |bounded: bool| {
+            let p = WarpParams {
+                bottom_bounded_by_frame: bounded,
+                ..WarpParams::default()
+            };
+            warp_frame(&white, &lin, &pose(0.0), &probe, &p, w, h)
+                .unwrap()
+                .0
+        };
+        let (bounded, own) = (run(true), run(false));
+        for x in 0..w {
+            let (b, o) = (bounded.get(x, h - 1), own.get(x, h - 1));
+            // Bounded: the frame's lower bound wins over the darker probe.
+            assert!(b.iter().all(|&v| (v - 1.0).abs() < 1e-4), "{b:?} at {x}");
+            // Unbounded: the probe's own floor.
+            for (k, want) in [0.25, 0.5, 0.75].into_iter().enumerate() {
+                assert!((o[k] - want).abs() < 1e-3, "{o:?} at {x}");
             }
         }
     }
