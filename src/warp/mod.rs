@@ -627,6 +627,15 @@ pub fn warp_frame(
     out_h: usize,
 ) -> Result<(HdrImage, WarpReport)> {
     use rayon::prelude::*;
+    if (sdr.width(), sdr.height()) != (sdr_linear.width(), sdr_linear.height()) {
+        return Err(crate::error::Error::Invalid(format!(
+            "warp: the frame is {}x{} but its linearised copy is {}x{}",
+            sdr.width(),
+            sdr.height(),
+            sdr_linear.width(),
+            sdr_linear.height()
+        )));
+    }
     for (what, img) in [("probe", &*probe.image), ("linearised frame", sdr_linear)] {
         let bad = img.count_invalid();
         if bad > 0 {
@@ -704,7 +713,8 @@ fn face_value(
 /// Assembles the output panorama: each pixel takes the mapping of the cube face it
 /// falls on, cross-faded with the neighbouring face's mapping near face edges. The
 /// SDR face reads the frame's own pixel (output and frame share their size) or
-/// samples it when the sizes differ. The geometry comes from the shared stitch map
+/// samples it when the sizes differ; either way, where the frame clipped, the
+/// probe supplies the light (see [`WarpParams::bottom_bounded_by_frame`]). The geometry comes from the shared stitch map
 /// when it is small enough to keep, else it is made row by row.
 fn stitch(
     maps: &[FaceMap; 6],
@@ -744,11 +754,21 @@ fn stitch(
                 let mut acc = [0.0f32; 3];
                 for t in &taps[start[col] as usize..start[col + 1] as usize] {
                     let v = match &maps[t.face as usize] {
-                        FaceMap::Sdr if same_size => {
-                            let v = sdr_linear.get(col, row);
+                        FaceMap::Sdr => {
+                            // The frame's own pixel, or (sizes differ) its sample in
+                            // this direction, with the codes of the nearest pixel.
+                            let (v, j) = if same_size {
+                                (sdr_linear.get(col, row), i)
+                            } else {
+                                let (u, vv) = crate::sphere::dir_to_uv(d);
+                                let (fw, fh) = (sdr.width(), sdr.height());
+                                let fx = ((u * fw as f32) as usize).min(fw - 1);
+                                let fy = ((vv * fh as f32) as usize).min(fh - 1);
+                                (sample_dir(sdr_linear, d), fy * fw + fx)
+                            };
                             // Near-white SDR codes are only a lower bound on radiance
                             // (the sensor clipped).
-                            let clipped = codes[3 * i..3 * i + 3].iter().any(|&c| c >= CLIP_CODE);
+                            let clipped = codes[3 * j..3 * j + 3].iter().any(|&c| c >= CLIP_CODE);
                             if clipped {
                                 // The true radiance is at least what the SDR shows; the
                                 // probe supplies the part above the white point.
@@ -1008,6 +1028,38 @@ mod tests {
                 assert!((o[k] - want).abs() < 1e-3, "{o:?} at {x}");
             }
         }
+    }
+
+    #[test]
+    fn a_saturated_frame_at_another_output_size_still_takes_the_light_from_the_probe() {
+        let (w, h) = (128, 64);
+        let mut probe_img = textured(w, h);
+        for y in h - 3..h {
+            for x in 0..w {
+                probe_img.set(x, y, [50.0, 50.0, 50.0]);
+            }
+        }
+        let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
+        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
+        let probe = PreparedProbe::new(
+            Arc::new(probe_img),
+            pose(0.0),
+            ProbeTonemap::Camera,
+            &Response::Srgb,
+            1.0,
+        );
+        // Twice the frame's size: the bottom face samples the frame.
+        let (ow, oh) = (2 * w, 2 * h);
+        let p = WarpParams::default();
+        let (out, _) = warp_frame(&white, &lin, &pose(0.0), &probe, &p, ow, oh).unwrap();
+        for x in 0..ow {
+            let o = out.get(x, oh - 1);
+            assert!(o[0] > 45.0, "floor light lost at column {x}: {o:?}");
+        }
+        // A linearised copy of another size is refused.
+        let small = HdrImage::from_fn(w / 2, h / 2, |_, _| [1.0, 1.0, 1.0]);
+        let err = warp_frame(&white, &small, &pose(0.0), &probe, &p, w, h).unwrap_err();
+        assert!(err.to_string().contains("64x32"), "{err}");
     }
 
     #[test]
