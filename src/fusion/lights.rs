@@ -367,6 +367,49 @@ impl LightView<'_> {
     }
 }
 
+impl LightView<'_> {
+    /// How many pixels of a frame `frame_width` pixels wide one probe pixel of the
+    /// surface spans along a line, for the probe that sees the point nearest the
+    /// frame's viewpoint (the one [`LightView::radiance`] weighs most): the ratio
+    /// of the two views' linear angular scales of a small patch at the point
+    /// (distance ratio times the square root of the foreshortening ratio), times
+    /// the ratio of the panoramas' widths. Above 1, the probe's samples are that
+    /// many times blurrier than the frame's pixels. For sources at infinity only
+    /// the widths count; `None` when the ray misses the surface.
+    pub fn magnification(&self, d: Vec3, frame_width: usize) -> Option<f32> {
+        let Surface::Plane { point, normal } = self.surface else {
+            let pw = self.probes[0].0.width().max(1);
+            return Some(frame_width as f32 / pw as f32);
+        };
+        let dw = self.frame.world_from_camera * d;
+        let along = normal.dot(dw);
+        if along.abs() < 1e-3 {
+            return None;
+        }
+        let t = normal.dot(point - self.frame.position) / along;
+        if !(t.is_finite() && t > 0.0) {
+            return None;
+        }
+        let x = self.frame.position + dw * t;
+        let mut best: Option<(f32, f32)> = None;
+        for (img, pose) in self.probes {
+            let v = x - pose.position;
+            let dp = v.length();
+            if !(dp > 0.0 && dp.is_finite()) {
+                continue;
+            }
+            let angle = (v / dp).dot(dw).clamp(-1.0, 1.0).acos();
+            let cos_p = (normal.dot(v) / dp).abs().max(1e-3);
+            let widths = frame_width as f32 / img.width().max(1) as f32;
+            let m = dp / t * ((along.abs() / cos_p).sqrt()) * widths;
+            if best.map_or(true, |(a, _)| angle < a) {
+                best = Some((angle, m));
+            }
+        }
+        best.map(|(_, m)| m)
+    }
+}
+
 /// Bright sources far away (the sky and the sun through a window, and their mirror
 /// images in glossy floors), seen by the probes in the same direction as by the
 /// frame: radiance at infinity depends only on the direction.
@@ -706,6 +749,26 @@ pub(crate) mod tests {
                 pose.position,
                 pose.world_from_camera * pixel_to_dir(x, y, w, h),
             )
+        })
+    }
+
+    /// [`render`] as a camera (or a path tracer) records it: each pixel the mean
+    /// over its area (4 x 4 samples), so an edge falls over a pixel or two.
+    pub(crate) fn render_area(pose: &Pose, w: usize, h: usize) -> HdrImage {
+        HdrImage::from_fn(w, h, |x, y| {
+            let mut acc = [0.0f32; 3];
+            for k in 0..16 {
+                let u = (x as f32 + (k % 4) as f32 * 0.25 + 0.125) / w as f32;
+                let v = (y as f32 + (k / 4) as f32 * 0.25 + 0.125) / h as f32;
+                let c = ceiling_room(
+                    pose.position,
+                    pose.world_from_camera * crate::sphere::uv_to_dir(u, v),
+                );
+                for j in 0..3 {
+                    acc[j] += c[j] / 16.0;
+                }
+            }
+            acc
         })
     }
 

@@ -26,6 +26,104 @@ use crate::sphere::row_solid_angles;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
+/// What the frame measured at a pixel of a clipped region: every channel clipped
+/// (nothing measured: the light is placed here), some channels clipped (the others
+/// are measurements), or none (a margin pixel, kept as measured).
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    Full,
+    Partial,
+    Margin,
+}
+
+/// Largest window radius (pixels) of the background estimate in
+/// [`carry_with_sharp_edges`]: bounds its cost when a frame sees a light many
+/// times larger than the probes did.
+const MAX_EDGE_RADIUS: usize = 8;
+
+/// A carried light's edge made as sharp as the frame sees it. A probe that saw the
+/// light from farther away (or more obliquely) than the frame resolved it `m`
+/// times more coarsely ([`lights::LightView::magnification`]), so its edge, carried
+/// to the frame, is a ramp `m` times too wide, and spreads the light's power over
+/// its glow. Taking the carried luminance `l` as a smooth `background` plus the
+/// emitter at `peak` seen through a blur, the emitter's share `q = (l - background)
+/// / (peak - background)` is steepened as a blurred step would be by narrowing its
+/// blur `m` times (a logistic edge: `q^m / (q^m + (1 - q)^m)`), which keeps the
+/// half-way contour, the estimate of where the edge is. Unchanged for `m <= 1`
+/// and outside `(background, peak)`.
+pub fn sharpen_edge(l: f32, background: f32, peak: f32, m: f32) -> f32 {
+    if !(m > 1.0 && l > background && l < peak) || !m.is_finite() {
+        return l;
+    }
+    let q = ((l - background) / (peak - background)) as f64;
+    let (a, b) = (q.powf(m as f64), (1.0 - q).powf(m as f64));
+    if !(a + b > 0.0) {
+        return l;
+    }
+    (background as f64 + (peak - background) as f64 * a / (a + b)) as f32
+}
+
+/// The radiance each clipped pixel of a region with a light carried through its
+/// surface receives, with the light's edges sharpened to the frame's resolution
+/// ([`sharpen_edge`]). The background at a pixel is the least carried luminance
+/// (at least `white`) within the blur's reach, `ceil(m)` pixels (at most
+/// [`MAX_EDGE_RADIUS`]) in the same region: outside the emitter, where a ceiling's
+/// glow falls off smoothly, that is the glow itself, which therefore stays; the
+/// peak is the region's brightest carried luminance. Measured at 512x256 against
+/// carrying without sharpening: kitchen log RMSE 0.0426 -> 0.0422, irradiance
+/// error 0.028 -> 0.017; flat direction error 4.89 -> 4.33 degrees (flat's
+/// ceiling panel, seen 2-3 times larger from under it than by the probes).
+fn carry_with_sharp_edges(
+    lab: &[u32],
+    kinds: &[Kind],
+    view: &[Option<(f64, &lights::LightView)>],
+    w: usize,
+    h: usize,
+    white: f32,
+) -> HashMap<usize, [f32; 3]> {
+    let mut carried: HashMap<usize, ([f32; 3], f32)> = HashMap::new();
+    let mut peak = vec![0.0f32; view.len()];
+    for i in 0..w * h {
+        if lab[i] == u32::MAX || kinds[i] == Kind::Margin {
+            continue;
+        }
+        let o = lab[i] as usize;
+        if let Some((_, lv)) = view[o] {
+            let d = crate::sphere::pixel_to_dir(i % w, i / w, w, h);
+            if let Some(r) = lv.radiance(d) {
+                let m = lv.magnification(d, w).unwrap_or(1.0);
+                carried.insert(i, (r, m));
+                peak[o] = peak[o].max(luminance(r));
+            }
+        }
+    }
+    carried
+        .iter()
+        .map(|(&i, &(r, m))| {
+            let l = luminance(r);
+            if !(m > 1.0) || l <= white {
+                return (i, r);
+            }
+            let reach = (m.ceil() as usize).min(MAX_EDGE_RADIUS) as i64;
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let mut background = l;
+            for yy in (y - reach).max(0)..=(y + reach).min(h as i64 - 1) {
+                for dx in -reach..=reach {
+                    let j = yy as usize * w + (x + dx).rem_euclid(w as i64) as usize;
+                    if lab[j] == lab[i] {
+                        if let Some(&(v, _)) = carried.get(&j) {
+                            background = background.min(luminance(v));
+                        }
+                    }
+                }
+            }
+            let l2 = sharpen_edge(l, background.max(white), peak[lab[i] as usize], m);
+            let k = if l > 0.0 { l2 / l } else { 1.0 };
+            (i, [r[0] * k, r[1] * k, r[2] * k])
+        })
+        .collect()
+}
+
 /// Settings of the fusion.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FusionParams {
@@ -590,15 +688,6 @@ pub fn fuse_with_lights(
             y as f32 + 0.5 + shift[o].1,
         )
     };
-    // What the frame measured at each region pixel: every channel clipped (nothing
-    // measured: the light is placed here), some channels clipped (the others are
-    // measurements), or none (a margin pixel, kept as measured).
-    #[derive(Clone, Copy, PartialEq)]
-    enum Kind {
-        Full,
-        Partial,
-        Margin,
-    }
     let mut kinds: Vec<Kind> = (0..w * h)
         .map(|i| {
             let c = &sdr.data()[3 * i..3 * i + 3];
@@ -662,10 +751,11 @@ pub fn fuse_with_lights(
     // the far source where the probes cover it. For fully clipped pixels (`full`)
     // a placed light with no surface keeps its power: the far source then only
     // shapes it (`shape`).
+    let carried_view = carry_with_sharp_edges(&lab, &kinds, &view, w, h, white);
     let light_radiance = |i: usize, full: bool| -> Option<[f32; 3]> {
         let o = lab[i] as usize;
-        if let Some((_, lv)) = view[o] {
-            return lv.radiance(dirs(i));
+        if view[o].is_some() {
+            return carried_view.get(&i).copied();
         }
         if !sky_ok[o] || (anchored[o] && full) {
             return None;
@@ -1477,7 +1567,7 @@ mod tests {
 
     #[test]
     fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance() {
-        use lights::tests::{render, upright};
+        use lights::tests::{render_area as render, upright};
         use lights::{lights_at_frame, Surface};
         let (w, h) = (256, 128);
         let (a, b) = (
@@ -1571,6 +1661,85 @@ mod tests {
             power_above(&out, white) / power_above(&truth, white),
             missed,
         )
+    }
+
+    #[test]
+    fn a_sharpened_logistic_edge_is_the_same_edge_less_blurred() {
+        let (bg, peak) = (2.0f32, 60.0f32);
+        let edge = |x: f32, s: f32| bg + (peak - bg) / (1.0 + (-x / s).exp());
+        for m in [1.5f32, 2.0, 4.0] {
+            for k in -20..=20 {
+                let x = k as f32 * 0.1;
+                let got = sharpen_edge(edge(x, 1.0), bg, peak, m);
+                let want = edge(x, 1.0 / m);
+                assert!(
+                    (got - want).abs() < 1e-3 * peak,
+                    "m {m} x {x}: {got} vs {want}"
+                );
+            }
+        }
+        // The half-way contour stays; nothing changes at or below magnification 1,
+        // or outside (background, peak); non-finite magnifications change nothing.
+        assert!((sharpen_edge(31.0, bg, peak, 3.0) - 31.0).abs() < 1e-4);
+        assert_eq!(sharpen_edge(10.0, bg, peak, 1.0), 10.0);
+        assert_eq!(sharpen_edge(10.0, bg, peak, 0.5), 10.0);
+        assert_eq!(sharpen_edge(1.0, bg, peak, 3.0), 1.0);
+        assert_eq!(sharpen_edge(70.0, bg, peak, 3.0), 70.0);
+        assert_eq!(sharpen_edge(10.0, bg, peak, f32::INFINITY), 10.0);
+        assert_eq!(sharpen_edge(10.0, bg, peak, f32::NAN), 10.0);
+    }
+
+    #[test]
+    fn a_panel_seen_from_close_under_it_keeps_a_sharp_edge() {
+        use lights::lights_at_frame;
+        use lights::tests::{render_area as render, upright};
+        let (w, h) = (256, 128);
+        // Probes 1.1 m below the ceiling and 1 to 1.5 m to the side of the panel;
+        // the frame 0.6 m under it sees it about three times larger.
+        let (a, b) = (
+            upright(glam::Vec3::new(0.0, 0.0, 1.5)),
+            upright(glam::Vec3::new(2.2, 0.3, 1.5)),
+        );
+        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let frame = upright(glam::Vec3::new(1.0, 0.4, 2.0));
+        let truth = render(&frame, w, h);
+        let white = 2.0f32;
+        let (codes, lin) = sdr_of(&truth, white);
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        let p = FusionParams::default();
+        let placed = lights_at_frame((&ia, &a), (&ib, &b), &frame, white, &p);
+        let view = placed.iter().find_map(|l| l.view).expect("panel carried");
+        let (out, _) = fuse_with_lights(&sdr, &lin, &ia, white, &placed, None, &p).unwrap();
+        // Log error over the fully clipped pixels, against what the lookup alone
+        // (the probes' blurrier view) gives them.
+        let (mut sharp, mut blurred, mut n) = (0.0f64, 0.0f64, 0usize);
+        for i in 0..w * h {
+            if !sdr.data()[3 * i..3 * i + 3].iter().all(|&c| c == 255) {
+                continue;
+            }
+            let d = crate::sphere::pixel_to_dir(i % w, i / w, w, h);
+            let Some(r) = view.radiance(d) else { continue };
+            let t = luminance(truth.get(i % w, i / w)).max(1e-6) as f64;
+            let o = luminance(out.get(i % w, i / w)).max(1e-6) as f64;
+            let l = luminance(r).max(white).max(1e-6) as f64;
+            sharp += (o.ln() - t.ln()).abs();
+            blurred += (l.ln() - t.ln()).abs();
+            n += 1;
+        }
+        assert!(n > 50, "{n} clipped pixels");
+        assert!(view.magnification(glam::Vec3::Y, w).unwrap() > 1.5);
+        // Probes of twice the frame's width are twice as sharp.
+        let m1 = view.magnification(glam::Vec3::Y, w).unwrap();
+        let m2 = view.magnification(glam::Vec3::Y, w / 2).unwrap();
+        assert!((m1 / m2 - 2.0).abs() < 1e-4, "{m1} {m2}");
+        // Measured: mean absolute log error 0.080 against 0.086 for the lookup
+        // alone (the same, to rounding, without the sharpening).
+        assert!(
+            sharp < 0.96 * blurred,
+            "{} vs {}",
+            sharp / n as f64,
+            blurred / n as f64
+        );
     }
 
     #[test]
