@@ -81,7 +81,7 @@ fn carry_with_sharp_edges(
     h: usize,
     white: f32,
 ) -> HashMap<usize, [f32; 3]> {
-    let mut carried: HashMap<usize, ([f32; 3], f32)> = HashMap::new();
+    let mut carried: Vec<(usize, [f32; 3], f32)> = Vec::new();
     let mut peak = vec![0.0f32; view.len()];
     for i in 0..w * h {
         if lab[i] == u32::MAX || kinds[i] == Kind::Margin {
@@ -92,15 +92,23 @@ fn carry_with_sharp_edges(
             let d = crate::sphere::pixel_to_dir(i % w, i / w, w, h);
             if let Some(r) = lv.radiance(d) {
                 let m = lv.magnification(d, w).unwrap_or(1.0);
-                carried.insert(i, (r, m));
+                carried.push((i, r, m));
                 peak[o] = peak[o].max(luminance(r));
             }
         }
     }
+    if carried.is_empty() {
+        return HashMap::new();
+    }
+    // Carried luminance per pixel (NaN where none), read by the windows below.
+    let mut lum = vec![f32::NAN; w * h];
+    for &(i, r, _) in &carried {
+        lum[i] = luminance(r);
+    }
     carried
         .iter()
-        .map(|(&i, &(r, m))| {
-            let l = luminance(r);
+        .map(|&(i, r, m)| {
+            let l = lum[i];
             if !(m > 1.0) || l <= white {
                 return (i, r);
             }
@@ -110,10 +118,9 @@ fn carry_with_sharp_edges(
             for yy in (y - reach).max(0)..=(y + reach).min(h as i64 - 1) {
                 for dx in -reach..=reach {
                     let j = yy as usize * w + (x + dx).rem_euclid(w as i64) as usize;
-                    if lab[j] == lab[i] {
-                        if let Some(&(v, _)) = carried.get(&j) {
-                            background = background.min(luminance(v));
-                        }
+                    // NaN (no carried value) never wins the minimum.
+                    if lab[j] == lab[i] && lum[j] < background {
+                        background = lum[j];
                     }
                 }
             }
