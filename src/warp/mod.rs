@@ -941,27 +941,32 @@ mod tests {
         assert!((a[0] - b[0]).abs() < 1e-4);
     }
 
-    #[test]
-    fn saturated_frame_takes_the_light_from_the_probe() {
-        let (w, h) = (128, 64);
+    /// A frame that clipped everywhere (with its linearised copy: the white point's
+    /// radiance, far below the lamp) and a probe with a bright floor light straight
+    /// down, which the frame cannot measure.
+    fn white_frame_over_floor_light(w: usize, h: usize) -> (SdrImage, HdrImage, PreparedProbe) {
         let mut probe_img = textured(w, h);
-        // A bright floor light straight down, which the white frame cannot measure.
         for y in h - 3..h {
             for x in 0..w {
                 probe_img.set(x, y, [50.0, 50.0, 50.0]);
             }
         }
         let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
-        // Linearised white: the white point's radiance, far below the lamp.
         let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
-        let resp = Response::Srgb;
         let probe = PreparedProbe::new(
-            Arc::new(probe_img.clone()),
+            Arc::new(probe_img),
             pose(0.0),
             ProbeTonemap::Camera,
-            &resp,
+            &Response::Srgb,
             1.0,
         );
+        (white, lin, probe)
+    }
+
+    #[test]
+    fn saturated_frame_takes_the_light_from_the_probe() {
+        let (w, h) = (128, 64);
+        let (white, lin, probe) = white_frame_over_floor_light(w, h);
         let (out, _) = warp_frame(
             &white,
             &lin,
@@ -1033,21 +1038,7 @@ mod tests {
     #[test]
     fn a_saturated_frame_at_another_output_size_still_takes_the_light_from_the_probe() {
         let (w, h) = (128, 64);
-        let mut probe_img = textured(w, h);
-        for y in h - 3..h {
-            for x in 0..w {
-                probe_img.set(x, y, [50.0, 50.0, 50.0]);
-            }
-        }
-        let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
-        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
-        let probe = PreparedProbe::new(
-            Arc::new(probe_img),
-            pose(0.0),
-            ProbeTonemap::Camera,
-            &Response::Srgb,
-            1.0,
-        );
+        let (white, lin, probe) = white_frame_over_floor_light(w, h);
         // Twice the frame's size: the bottom face samples the frame.
         let (ow, oh) = (2 * w, 2 * h);
         let p = WarpParams::default();
