@@ -52,12 +52,14 @@ const MAX_EDGE_RADIUS: usize = 8;
 /// half-way contour, the estimate of where the edge is. Unchanged for `m <= 1`
 /// and outside `(background, peak)`.
 pub fn sharpen_edge(l: f32, background: f32, peak: f32, m: f32) -> f32 {
-    if !(m > 1.0 && l > background && l < peak) || !m.is_finite() {
+    // Written so that NaN in any argument leaves `l` unchanged.
+    let applies = m.is_finite() && m > 1.0 && l > background && l < peak;
+    if !applies {
         return l;
     }
     let q = ((l - background) / (peak - background)) as f64;
     let (a, b) = (q.powf(m as f64), (1.0 - q).powf(m as f64));
-    if !(a + b > 0.0) {
+    if a + b <= 0.0 || !(a + b).is_finite() {
         return l;
     }
     (background as f64 + (peak - background) as f64 * a / (a + b)) as f32
@@ -109,7 +111,8 @@ fn carry_with_sharp_edges(
         .iter()
         .map(|&(i, r, m)| {
             let l = lum[i];
-            if !(m > 1.0) || l <= white {
+            // (A NaN magnification fails `m > 1.0` too.)
+            if m.is_nan() || m <= 1.0 || l <= white {
                 return (i, r);
             }
             let reach = (m.ceil() as usize).min(MAX_EDGE_RADIUS) as i64;
