@@ -951,6 +951,13 @@ mod tests {
                 probe_img.set(x, y, [50.0, 50.0, 50.0]);
             }
         }
+        white_frame_over(probe_img)
+    }
+
+    /// A frame of the probe's size that clipped everywhere, its linearised copy at
+    /// the white point, and the probe prepared at the origin.
+    fn white_frame_over(probe_img: HdrImage) -> (SdrImage, HdrImage, PreparedProbe) {
+        let (w, h) = (probe_img.width(), probe_img.height());
         let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
         let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
         let probe = PreparedProbe::new(
@@ -1005,15 +1012,7 @@ mod tests {
                 [0.3, 0.3, 0.3]
             }
         });
-        let white = SdrImage::from_vec(w, h, vec![255; w * h * 3]).unwrap();
-        let lin = HdrImage::from_fn(w, h, |_, _| [1.0, 1.0, 1.0]);
-        let probe = PreparedProbe::new(
-            Arc::new(probe_img),
-            pose(0.0),
-            ProbeTonemap::Camera,
-            &Response::Srgb,
-            1.0,
-        );
+        let (white, lin, probe) = white_frame_over(probe_img);
         let run = |bounded: bool| {
             let p = WarpParams {
                 bottom_bounded_by_frame: bounded,
