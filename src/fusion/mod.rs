@@ -48,6 +48,26 @@ const MAX_EDGE_RADIUS: usize = 8;
 /// 39.56 dB there; 39.67 with the test).
 const PLATEAU_SHARE: f64 = 0.3;
 
+/// True when carried luminances `l` look like an emitter (a panel, a lamp, a
+/// window pane): a plateau near their peak that a blur did not reach, at least
+/// [`PLATEAU_SHARE`] as many values within 10% of the peak (above `white`) as
+/// above half of it. A carried surface that merely varies (a textured or unevenly
+/// lit patch whose peak is one bright spot) has few values near its peak, and has
+/// no edge to sharpen.
+pub fn has_plateau(l: &[f32], white: f32) -> bool {
+    let peak = l.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+    if !(peak.is_finite() && peak > white) {
+        return false;
+    }
+    let above = |share: f32| {
+        l.iter()
+            .filter(|&&v| v >= white + share * (peak - white))
+            .count()
+    };
+    let (half, near) = (above(0.5), above(0.9));
+    half > 0 && near as f64 >= PLATEAU_SHARE * half as f64
+}
+
 /// A carried light's edge made as sharp as the frame sees it. A probe that saw the
 /// light from farther away (or more obliquely) than the frame resolved it `m`
 /// times more coarsely ([`lights::LightView::magnification`]), so its edge, carried
@@ -110,24 +130,11 @@ fn carry_with_sharp_edges(
     if carried.is_empty() {
         return HashMap::new();
     }
-    // Only an emitter (a panel, a lamp, a window pane) has an edge to sharpen: a
-    // plateau near its peak that the blur did not reach. A carried surface that
-    // merely varies (a textured or unevenly lit patch whose peak is one bright
-    // spot) has few pixels near its peak, and is carried as it is.
-    let (mut near_peak, mut above_half) = (vec![0usize; view.len()], vec![0usize; view.len()]);
+    let mut per_region: Vec<Vec<f32>> = vec![Vec::new(); view.len()];
     for &(i, r, _) in &carried {
-        let o = lab[i] as usize;
-        let (l, pk) = (luminance(r), peak[o]);
-        if pk > white && l >= white + 0.5 * (pk - white) {
-            above_half[o] += 1;
-            if l >= white + 0.9 * (pk - white) {
-                near_peak[o] += 1;
-            }
-        }
+        per_region[lab[i] as usize].push(luminance(r));
     }
-    let emitter: Vec<bool> = (0..view.len())
-        .map(|o| above_half[o] > 0 && near_peak[o] as f64 >= PLATEAU_SHARE * above_half[o] as f64)
-        .collect();
+    let emitter: Vec<bool> = per_region.iter().map(|l| has_plateau(l, white)).collect();
     // Carried luminance per pixel (NaN where none), read by the windows below.
     let mut lum = vec![f32::NAN; w * h];
     for &(i, r, _) in &carried {
@@ -1723,6 +1730,30 @@ mod tests {
         assert_eq!(sharpen_edge(70.0, bg, peak, 3.0), 70.0);
         assert_eq!(sharpen_edge(10.0, bg, peak, f32::INFINITY), 10.0);
         assert_eq!(sharpen_edge(10.0, bg, peak, f32::NAN), 10.0);
+    }
+
+    #[test]
+    fn a_blurred_panel_has_a_plateau_and_a_textured_patch_does_not() {
+        let white = 2.0f32;
+        // A 12 px panel at 50, its edges blurred over 3 px on each side.
+        let panel: Vec<f32> = (0..18)
+            .map(|x| {
+                let inside = (x as f32 - 2.5)
+                    .clamp(0.0, 3.0)
+                    .min((15.5 - x as f32).clamp(0.0, 3.0));
+                white + (50.0 - white) * inside / 3.0
+            })
+            .collect();
+        assert!(has_plateau(&panel, white), "{panel:?}");
+        // A bright textured patch: values spread between 10 and 60, one at the top.
+        let patch: Vec<f32> = (0..40)
+            .map(|k| 10.0 + 50.0 * ((k * 37 % 40) as f32 / 39.0))
+            .collect();
+        assert!(!has_plateau(&patch, white));
+        // Nothing above white, nothing at all, or non-finite values: no emitter.
+        assert!(!has_plateau(&[1.0, 1.5], white));
+        assert!(!has_plateau(&[], white));
+        assert!(!has_plateau(&[f32::NAN, f32::INFINITY], white));
     }
 
     #[test]
