@@ -44,8 +44,8 @@ const MAX_EDGE_RADIUS: usize = 8;
 /// Share of a carried light's pixels above half its peak that must lie within 10%
 /// of the peak for [`carry_with_sharp_edges`] to treat it as an emitter. Measured
 /// at 512x256: 0.3 and 0.5 within 0.0003 in log RMSE on kitchen and flat; 0
-/// (every light) darkened a textured window of the demo scene (fusion 39.67 ->
-/// 39.56 dB there; 39.67 with the test).
+/// (every light) darkened a textured carried patch of the demo scene (fusion
+/// 39.67 -> 39.56 dB there; 39.67 with the test).
 const PLATEAU_SHARE: f64 = 0.3;
 
 /// True when carried luminances `l` look like an emitter (a panel, a lamp, a
@@ -101,7 +101,7 @@ pub fn sharpen_edge(l: f32, background: f32, peak: f32, m: f32) -> f32 {
 /// glow falls off smoothly, that is the glow itself, which therefore stays; the
 /// peak is the region's brightest carried luminance. Measured at 512x256 against
 /// carrying without sharpening: kitchen log RMSE 0.0426 -> 0.0422, irradiance
-/// error 0.028 -> 0.017; flat direction error 4.89 -> 4.33 degrees (flat's
+/// error 0.028 -> 0.017; flat direction error 4.89 -> 4.29 degrees (flat's
 /// ceiling panel, seen 2-3 times larger from under it than by the probes).
 fn carry_with_sharp_edges(
     lab: &[u32],
