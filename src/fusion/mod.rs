@@ -1608,16 +1608,28 @@ mod tests {
         sum / n.max(1) as f64
     }
 
+    /// The two probes of the [`lights::tests::ceiling_room`] tests, 1.1 m below the
+    /// ceiling on either side of its panel, with their panoramas made by `render`.
+    fn ceiling_probes(
+        render: fn(&crate::scene::Pose, usize, usize) -> HdrImage,
+        w: usize,
+        h: usize,
+    ) -> (
+        (crate::scene::Pose, HdrImage),
+        (crate::scene::Pose, HdrImage),
+    ) {
+        use lights::tests::upright;
+        let a = upright(glam::Vec3::new(0.0, 0.0, 1.5));
+        let b = upright(glam::Vec3::new(2.2, 0.3, 1.5));
+        ((a, render(&a, w, h)), (b, render(&b, w, h)))
+    }
+
     #[test]
     fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance() {
         use lights::tests::{render_area as render, upright};
         use lights::{lights_at_frame, Surface};
         let (w, h) = (256, 128);
-        let (a, b) = (
-            upright(glam::Vec3::new(0.0, 0.0, 1.5)),
-            upright(glam::Vec3::new(2.2, 0.3, 1.5)),
-        );
-        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let ((a, ia), (b, ib)) = ceiling_probes(render, w, h);
         // The frame, almost under the panel, as an SDR camera clipping at 2.
         let frame = upright(glam::Vec3::new(1.1, 0.6, 1.5));
         let truth = render(&frame, w, h);
@@ -1675,11 +1687,7 @@ mod tests {
         use lights::lights_at_frame;
         use lights::tests::{render, upright};
         let (w, h) = (256, 128);
-        let (a, b) = (
-            upright(glam::Vec3::new(0.0, 0.0, 1.5)),
-            upright(glam::Vec3::new(2.2, 0.3, 1.5)),
-        );
-        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let ((a, ia), (b, ib)) = ceiling_probes(render, w, h);
         let posed = upright(posed);
         let truth = render(&upright(truth_at), w, h);
         let white = 2.0f32;
@@ -1763,11 +1771,7 @@ mod tests {
         let (w, h) = (256, 128);
         // Probes 1.1 m below the ceiling and 1 to 1.5 m to the side of the panel;
         // the frame 0.6 m under it sees it about three times larger.
-        let (a, b) = (
-            upright(glam::Vec3::new(0.0, 0.0, 1.5)),
-            upright(glam::Vec3::new(2.2, 0.3, 1.5)),
-        );
-        let (ia, ib) = (render(&a, w, h), render(&b, w, h));
+        let ((a, ia), (b, ib)) = ceiling_probes(render, w, h);
         let frame = upright(glam::Vec3::new(1.0, 0.4, 2.0));
         let truth = render(&frame, w, h);
         let white = 2.0f32;
