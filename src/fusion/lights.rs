@@ -230,20 +230,27 @@ impl Surface {
     pub fn seen_from(&self, origin: Vec3, dir: Vec3, eye: Vec3) -> Option<Vec3> {
         match *self {
             Surface::Infinity => Some(dir),
-            Surface::Plane { point, normal } => {
-                let along = normal.dot(dir);
-                if along.abs() < 1e-3 {
-                    return None;
-                }
-                let t = normal.dot(point - origin) / along;
-                if !(t.is_finite() && t > 0.0) {
-                    return None;
-                }
-                let v = origin + dir * t - eye;
+            Surface::Plane { .. } => {
+                let v = self.meet(origin, dir)?.0 - eye;
                 let d = v.length();
                 (d > 0.0 && d.is_finite()).then(|| v / d)
             }
         }
+    }
+
+    /// Where the ray from `origin` along `dir` meets the plane, and how far along
+    /// it; `None` when it runs parallel to the plane or meets it behind `origin`,
+    /// and for a surface at infinity.
+    fn meet(&self, origin: Vec3, dir: Vec3) -> Option<(Vec3, f32)> {
+        let Surface::Plane { point, normal } = *self else {
+            return None;
+        };
+        let along = normal.dot(dir);
+        if along.abs() < 1e-3 {
+            return None;
+        }
+        let t = normal.dot(point - origin) / along;
+        (t.is_finite() && t > 0.0).then(|| (origin + dir * t, t))
     }
 }
 
@@ -338,75 +345,70 @@ pub struct LightView<'a> {
 
 impl LightView<'_> {
     /// Radiance the frame sees in direction `d` (its camera axes) through the
-    /// light's surface: the probes' samples of the same surface point, the probe
-    /// that sees it from nearest the frame's viewpoint weighing most (a window's sky
-    /// or a glossy patch changes with the viewpoint). `None` when the ray misses
-    /// the surface.
+    /// light's surface ([`LightView::sample`] without the magnification).
     pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        self.sample(d, 1).map(|(r, _)| r)
+    }
+
+    /// What the frame (`frame_width` pixels wide) sees in direction `d` (its camera
+    /// axes) through the light's surface, and how sharply.
+    ///
+    /// The radiance is the probes' samples of the same surface point, the probe
+    /// that sees it from nearest the frame's viewpoint weighing most (a window's
+    /// sky or a glossy patch changes with the viewpoint).
+    ///
+    /// The magnification is how many frame pixels one pixel of that probe spans
+    /// along a line at the point: the ratio of the two views' linear angular
+    /// scales of a small patch there (distance ratio times the square root of the
+    /// foreshortening ratio), times the ratio of the panoramas' widths. Above 1,
+    /// the probe's samples are that many times blurrier than the frame's pixels.
+    /// For sources at infinity only the widths count.
+    ///
+    /// `None` when the ray misses the surface.
+    pub fn sample(&self, d: Vec3, frame_width: usize) -> Option<([f32; 3], f32)> {
         let dw = self.frame.world_from_camera * d;
+        let widths = |img: &HdrImage| frame_width as f32 / img.width().max(1) as f32;
         let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
-        for (img, pose) in self.probes {
-            let v = self
-                .surface
-                .seen_from(self.frame.position, dw, pose.position)?;
-            let wt = match self.surface {
-                // The same direction from both: the nearer probe weighs more.
-                Surface::Infinity => {
-                    1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3)
-                }
-                // The angle between the probe's and the frame's rays to the point.
-                Surface::Plane { .. } => 1.0 / (v.dot(dw).clamp(-1.0, 1.0).acos() as f64 + 0.02),
-            };
+        let mut add = |img: &HdrImage, pose: &Pose, v: Vec3, wt: f64| {
             let c = sample_dir(img, pose.world_from_camera.transpose() * v);
             for k in 0..3 {
                 sum[k] += wt * c[k] as f64;
             }
             norm += wt;
-        }
-        (norm > 0.0).then(|| sum.map(|s| (s / norm) as f32))
-    }
-}
-
-impl LightView<'_> {
-    /// How many pixels of a frame `frame_width` pixels wide one probe pixel of the
-    /// surface spans along a line, for the probe that sees the point nearest the
-    /// frame's viewpoint (the one [`LightView::radiance`] weighs most): the ratio
-    /// of the two views' linear angular scales of a small patch at the point
-    /// (distance ratio times the square root of the foreshortening ratio), times
-    /// the ratio of the panoramas' widths. Above 1, the probe's samples are that
-    /// many times blurrier than the frame's pixels. For sources at infinity only
-    /// the widths count; `None` when the ray misses the surface.
-    pub fn magnification(&self, d: Vec3, frame_width: usize) -> Option<f32> {
-        let Surface::Plane { point, normal } = self.surface else {
-            let pw = self.probes[0].0.width().max(1);
-            return Some(frame_width as f32 / pw as f32);
         };
-        let dw = self.frame.world_from_camera * d;
-        let along = normal.dot(dw);
-        if along.abs() < 1e-3 {
-            return None;
-        }
-        let t = normal.dot(point - self.frame.position) / along;
-        if !(t.is_finite() && t > 0.0) {
-            return None;
-        }
-        let x = self.frame.position + dw * t;
-        let mut best: Option<(f32, f32)> = None;
-        for (img, pose) in self.probes {
-            let v = x - pose.position;
-            let dp = v.length();
-            if !(dp > 0.0 && dp.is_finite()) {
-                continue;
+        let magnification = match self.surface {
+            // The same direction from both: the nearer probe weighs more.
+            Surface::Infinity => {
+                for (img, pose) in self.probes {
+                    let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
+                    add(img, pose, dw, wt);
+                }
+                widths(self.probes[0].0)
             }
-            let angle = (v / dp).dot(dw).clamp(-1.0, 1.0).acos();
-            let cos_p = (normal.dot(v) / dp).abs().max(1e-3);
-            let widths = frame_width as f32 / img.width().max(1) as f32;
-            let m = dp / t * ((along.abs() / cos_p).sqrt()) * widths;
-            if best.map_or(true, |(a, _)| angle < a) {
-                best = Some((angle, m));
+            Surface::Plane { normal, .. } => {
+                let (x, t) = self.surface.meet(self.frame.position, dw)?;
+                let along = normal.dot(dw).abs();
+                // (angle between the probe's and the frame's rays, magnification)
+                let mut nearest: Option<(f32, f32)> = None;
+                for (img, pose) in self.probes {
+                    let v = x - pose.position;
+                    let dp = v.length();
+                    if !(dp > 0.0 && dp.is_finite()) {
+                        return None;
+                    }
+                    let u = v / dp;
+                    let angle = u.dot(dw).clamp(-1.0, 1.0).acos();
+                    add(img, pose, u, 1.0 / (angle as f64 + 0.02));
+                    let cos_p = (normal.dot(v) / dp).abs().max(1e-3);
+                    let m = dp / t * (along / cos_p).sqrt() * widths(img);
+                    if nearest.map_or(true, |(a, _)| angle < a) {
+                        nearest = Some((angle, m));
+                    }
+                }
+                nearest?.1
             }
-        }
-        best.map(|(_, m)| m)
+        };
+        (norm > 0.0).then(|| (sum.map(|s| (s / norm) as f32), magnification))
     }
 }
 
