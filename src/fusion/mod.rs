@@ -111,8 +111,14 @@ fn carry_with_sharp_edges(
     h: usize,
     white: f32,
 ) -> HashMap<usize, [f32; 3]> {
+    if view.iter().all(Option::is_none) {
+        return HashMap::new();
+    }
+    // (pixel, radiance, magnification), and the carried luminance per pixel (NaN
+    // where none) and per region.
     let mut carried: Vec<(usize, [f32; 3], f32)> = Vec::new();
-    let mut peak = vec![0.0f32; view.len()];
+    let mut lum = vec![f32::NAN; w * h];
+    let mut per_region: Vec<Vec<f32>> = vec![Vec::new(); view.len()];
     for i in 0..w * h {
         if lab[i] == u32::MAX || kinds[i] == Kind::Margin {
             continue;
@@ -122,23 +128,16 @@ fn carry_with_sharp_edges(
             let d = crate::sphere::pixel_to_dir(i % w, i / w, w, h);
             if let Some((r, m)) = lv.sample(d, w) {
                 carried.push((i, r, m));
-                peak[o] = peak[o].max(luminance(r));
+                lum[i] = luminance(r);
+                per_region[o].push(lum[i]);
             }
         }
     }
-    if carried.is_empty() {
-        return HashMap::new();
-    }
-    let mut per_region: Vec<Vec<f32>> = vec![Vec::new(); view.len()];
-    for &(i, r, _) in &carried {
-        per_region[lab[i] as usize].push(luminance(r));
-    }
+    let peak: Vec<f32> = per_region
+        .iter()
+        .map(|l| l.iter().cloned().fold(0.0f32, f32::max))
+        .collect();
     let emitter: Vec<bool> = per_region.iter().map(|l| has_plateau(l, white)).collect();
-    // Carried luminance per pixel (NaN where none), read by the windows below.
-    let mut lum = vec![f32::NAN; w * h];
-    for &(i, r, _) in &carried {
-        lum[i] = luminance(r);
-    }
     carried
         .iter()
         .map(|&(i, r, m)| {
