@@ -683,8 +683,10 @@ pub fn warp_frame(
 /// 8-bit code from which an SDR channel counts as clipped.
 pub const CLIP_CODE: u8 = 250;
 
-/// Value of frame-face `f`'s mapping in direction `d` (frame axes), or `None` when the
-/// mapping does not reach that direction.
+/// Value of a frame face's mapping into the probe in direction `d` (frame axes),
+/// or `None` when the mapping does not reach that direction. The frame's own face
+/// ([`FaceMap::Sdr`]) is read by [`stitch`], which knows where the frame clipped;
+/// here it gives `None`.
 #[inline]
 fn face_value(
     map: &FaceMap,
@@ -693,11 +695,10 @@ fn face_value(
     d: Vec3,
     rel: Mat3,
     probe: &HdrImage,
-    sdr_linear: &HdrImage,
     extrapolate: f32,
 ) -> Option<[f32; 3]> {
     match map {
-        FaceMap::Sdr => Some(sample_dir(sdr_linear, d)),
+        FaceMap::Sdr => None,
         FaceMap::Fallback => Some(sample_dir(probe, rel * d)),
         FaceMap::Homography { hinv, rot, face } => {
             let (qa, qb) = apply_h(hinv, a as f64, b as f64)?;
@@ -714,8 +715,9 @@ fn face_value(
 /// falls on, cross-faded with the neighbouring face's mapping near face edges. The
 /// SDR face reads the frame's own pixel (output and frame share their size) or
 /// samples it when the sizes differ; either way, where the frame clipped, the
-/// probe supplies the light (see [`WarpParams::bottom_bounded_by_frame`]). The geometry comes from the shared stitch map
-/// when it is small enough to keep, else it is made row by row.
+/// probe supplies the light (see [`WarpParams::bottom_bounded_by_frame`]). The
+/// geometry comes from the shared stitch map when it is small enough to keep,
+/// else it is made row by row.
 fn stitch(
     maps: &[FaceMap; 6],
     rel: Mat3,
@@ -782,7 +784,7 @@ fn stitch(
                                 v
                             }
                         }
-                        m => face_value(m, t.a, t.b, d, rel, hdr, sdr_linear, p.extrapolate)
+                        m => face_value(m, t.a, t.b, d, rel, hdr, p.extrapolate)
                             .unwrap_or_else(|| sample_dir(hdr, rel * d)),
                     };
                     for k in 0..3 {
