@@ -635,15 +635,15 @@ pub fn predict_frame(
             let mut probes = Vec::with_capacity(used.len());
             let mut warped = Vec::new();
             let mut first_warp = None;
+            // The hybrid's warp supplies probes: where the frame clipped, their
+            // bottom face holds the probe's own radiance.
+            let wp = warp::WarpParams {
+                bottom_bounded_by_frame: false,
+                ..params.warp.clone()
+            };
             for &u in used {
                 let (pp, _) = get_probe(u)?;
                 if params.method == Method::Hybrid {
-                    // The warp supplies probes here: where the frame clipped, its
-                    // bottom face holds the probe's own radiance.
-                    let wp = warp::WarpParams {
-                        bottom_bounded_by_frame: false,
-                        ..params.warp.clone()
-                    };
                     let (img, r) = warp::warp_frame(sdr, lin, &frame.pose, &pp, &wp, w, h)?;
                     first_warp.get_or_insert(r);
                     warped.push(img);
