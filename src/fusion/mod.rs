@@ -22,6 +22,7 @@ pub mod lights;
 
 use crate::error::{Error, Result};
 use crate::image::{luminance, HdrImage, SdrImage};
+pub use crate::sphere::mask::{components, dilate};
 use crate::sphere::row_solid_angles;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -380,78 +381,6 @@ pub fn clip_mask(sdr: &SdrImage, clip_code: u8, min_core: usize, margin: usize) 
         }
     }
     dilate(&m, w, h, margin)
-}
-
-/// The 4-neighbours of pixel `p` of a `w x h` panorama, wrapping across the seam;
-/// `usize::MAX` for those beyond the top or bottom row.
-fn neighbours4(p: usize, w: usize, h: usize) -> [usize; 4] {
-    let (x, y) = (p % w, p / w);
-    let mut nb = [usize::MAX; 4];
-    nb[0] = y * w + (x + w - 1) % w;
-    nb[1] = y * w + (x + 1) % w;
-    if y > 0 {
-        nb[2] = p - w;
-    }
-    if y + 1 < h {
-        nb[3] = p + w;
-    }
-    nb
-}
-
-/// A mask grown by `steps` pixels (4-neighbours, wrapping across the seam). Work
-/// grows with the mask's rim and what is added, not with the image.
-pub fn dilate(mask: &[bool], w: usize, h: usize, steps: usize) -> Vec<bool> {
-    let mut m = mask.to_vec();
-    let neighbours = |p: usize| neighbours4(p, w, h);
-    if steps == 0 {
-        return m;
-    }
-    // The rim: mask pixels with a neighbour outside the mask.
-    let mut frontier: Vec<u32> = (0..w * h)
-        .filter(|&p| m[p] && neighbours(p).iter().any(|&q| q != usize::MAX && !m[q]))
-        .map(|p| p as u32)
-        .collect();
-    for _ in 0..steps {
-        let mut next = Vec::new();
-        for &p in &frontier {
-            for q in neighbours(p as usize) {
-                if q != usize::MAX && !m[q] {
-                    m[q] = true;
-                    next.push(q as u32);
-                }
-            }
-        }
-        if next.is_empty() {
-            break;
-        }
-        frontier = next;
-    }
-    m
-}
-
-/// Connected components (4-neighbours, wrapping across the seam) of a mask; returns
-/// a label per pixel (`u32::MAX` outside) and the number of components.
-pub fn components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, usize) {
-    let mut lab = vec![u32::MAX; w * h];
-    let mut n = 0u32;
-    let mut stack = Vec::new();
-    for start in 0..w * h {
-        if !mask[start] || lab[start] != u32::MAX {
-            continue;
-        }
-        lab[start] = n;
-        stack.push(start);
-        while let Some(p) = stack.pop() {
-            for q in neighbours4(p, w, h) {
-                if q != usize::MAX && mask[q] && lab[q] == u32::MAX {
-                    lab[q] = n;
-                    stack.push(q);
-                }
-            }
-        }
-        n += 1;
-    }
-    (lab, n as usize)
 }
 
 /// A light placed in 3-D ([`lights`]) as one frame sees it.
@@ -1162,40 +1091,6 @@ mod tests {
                     * sa[i / img.width()] as f64
             })
             .sum()
-    }
-
-    #[test]
-    fn dilation_grows_by_four_neighbour_steps_across_the_seam() {
-        // Against the plain definition: a pixel joins at step k when one of its
-        // four neighbours (wrapping in x) was in the mask after step k - 1.
-        let (w, h) = (23, 11);
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 33) % 29 == 0
-        };
-        let mask: Vec<bool> = (0..w * h).map(|_| rnd()).collect();
-        for steps in 0..5 {
-            let mut want = mask.clone();
-            for _ in 0..steps {
-                let prev = want.clone();
-                for p in 0..w * h {
-                    let (x, y) = (p % w, p / w);
-                    let nb = [
-                        Some(y * w + (x + w - 1) % w),
-                        Some(y * w + (x + 1) % w),
-                        (y > 0).then(|| p - w),
-                        (y + 1 < h).then(|| p + w),
-                    ];
-                    if nb.iter().flatten().any(|&q| prev[q]) {
-                        want[p] = true;
-                    }
-                }
-            }
-            assert_eq!(dilate(&mask, w, h, steps), want, "steps {steps}");
-        }
     }
 
     #[test]

@@ -8,6 +8,7 @@
 //! -z forward, so the image centre looks forward.
 
 pub mod cube;
+pub mod mask;
 
 pub use cube::{CubeFace, FACES};
 
