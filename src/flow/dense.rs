@@ -266,15 +266,18 @@ pub fn warp_backward(img: &HdrImage, flow: &FlowField) -> Result<HdrImage> {
     let mut out = HdrImage::new(w, h);
     for y in 0..h {
         for x in 0..w {
-            let (dx, dy) = flow.at(x, y);
-            out.set(
-                x,
-                y,
-                sample_px(img, x as f32 + 0.5 + dx, y as f32 + 0.5 + dy),
-            );
+            out.set(x, y, warp_pixel(img, flow, x, y));
         }
     }
     Ok(out)
+}
+
+/// One pixel of [`warp_backward`]: `img` at `(x, y) + flow(x, y)` (both the
+/// flow's size).
+#[inline]
+pub fn warp_pixel(img: &HdrImage, flow: &FlowField, x: usize, y: usize) -> [f32; 3] {
+    let (dx, dy) = flow.at(x, y);
+    sample_px(img, x as f32 + 0.5 + dx, y as f32 + 0.5 + dy)
 }
 
 #[cfg(test)]

@@ -6,6 +6,7 @@
 use super::dense::{
     confidence_with, pano_flow, texture_confidence, warp_backward, FlowField, FlowParams,
 };
+use super::distant::{hold_distant_lights, DistantLights};
 use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
@@ -81,6 +82,24 @@ pub struct FlowMethodParams {
     /// of those stages took over 10 GB. 0 = always full resolution.
     #[serde(default = "default_work_width")]
     pub work_width: usize,
+    /// Largest angle, in degrees, between the directions in which the probes see a
+    /// clipped region's light for the light to count as distant: the probes then
+    /// have no parallax for it, so the flow keeps their rotated alignment there
+    /// (see [`super::distant`]). 0 turns this off.
+    #[serde(default = "default_distant_light_deg")]
+    pub distant_light_deg: f32,
+    /// How far around a clipped region its light is looked for, in degrees of
+    /// longitude: the most a flow error is expected to move it.
+    #[serde(default = "default_light_ring_deg")]
+    pub light_ring_deg: f32,
+}
+
+fn default_distant_light_deg() -> f32 {
+    0.2
+}
+
+fn default_light_ring_deg() -> f32 {
+    2.0
 }
 
 fn yes() -> bool {
@@ -122,6 +141,8 @@ impl Default for FlowMethodParams {
             measured_decides: true,
             dc_weight: 100.0,
             work_width: default_work_width(),
+            distant_light_deg: default_distant_light_deg(),
+            light_ring_deg: default_light_ring_deg(),
         }
     }
 }
@@ -176,6 +197,10 @@ pub struct FlowReport {
     pub mean_confidence: Vec<f32>,
     /// Mean flow magnitude per source, in pixels.
     pub mean_flow_px: Vec<f32>,
+    /// Pixels per source whose flow was set to zero because the probes agree that
+    /// a clipped light there is distant (see [`super::distant`]).
+    #[serde(default)]
+    pub distant_light_px: Vec<usize>,
     /// Final energy, and its data and smoothness parts.
     pub energy: f64,
     /// Data part of the energy.
@@ -367,7 +392,25 @@ fn fuse(
             })
             .collect()
     };
-    let flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
+    let mut flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
+    // Where the frame clipped, a light the probes see in the same direction keeps
+    // the rotation's alignment.
+    let clipped_px: Vec<bool> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= p.clip_code))
+        .collect();
+    let distant_light_px = if p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0 {
+        let images: Vec<&HdrImage> = sources.iter().map(|s| s.image).collect();
+        let settings = DistantLights {
+            clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
+            ring_px: (p.light_ring_deg.max(0.0) / 360.0 * w as f32).ceil() as usize,
+            tolerance_rad: (p.distant_light_deg as f64).to_radians(),
+        };
+        hold_distant_lights(&clipped_px, w, h, &images, &mut flows, &settings)
+    } else {
+        vec![0; sources.len()]
+    };
     timings.flow_ms = ms(t);
 
     let t = Instant::now();
@@ -405,11 +448,6 @@ fn fuse(
         .collect();
     // Seam weight per pixel: 1 where the frame clipped (or next to a clipped
     // pixel), `seam_measured` where it measured.
-    let clipped_px: Vec<bool> = sdr
-        .data()
-        .chunks_exact(3)
-        .map(|c| c.iter().any(|&v| v >= p.clip_code))
-        .collect();
     let seam_w: Vec<f32> = (0..w * h)
         .map(|px| {
             let (x, y) = (px % w, px / w);
@@ -578,6 +616,7 @@ fn fuse(
         label_fractions: counts.iter().map(|&c| c as f32 / npx).collect(),
         mean_confidence: confs.iter().map(|c| c.iter().sum::<f32>() / npx).collect(),
         mean_flow_px: flows.iter().map(|(f, _)| f.mean_magnitude()).collect(),
+        distant_light_px,
         energy: e,
         data_energy: ed,
         smooth_energy: es,
@@ -1171,5 +1210,82 @@ mod tests {
                 / out.data().len() as f32;
             assert!(err < 0.02, "mean relative error {err}");
         }
+    }
+
+    #[test]
+    fn a_distant_sun_keeps_the_rotations_alignment_where_the_flow_would_move_it() {
+        // Near texture everywhere, shifted 2 px one way in one probe and the other
+        // way in the other (parallax), and a 2 x 2 sun straddling the seam that both
+        // probes and the frame see in the same place (no parallax: it is distant).
+        let resp = Response::Gamma { gamma: 2.2 };
+        let sun = |x: usize, y: usize| (x == 0 || x == W - 1) && (y == 30 || y == 31);
+        let texture = |x: i64, y: usize| {
+            let mut r = SplitMix64::new((y as u64) * 1000 + x.rem_euclid(W as i64) as u64);
+            r.range(0.02, 0.6) as f32
+        };
+        let scene = |shift: i64| {
+            HdrImage::from_fn(W, H, |x, y| {
+                if sun(x, y) {
+                    [1e4; 3]
+                } else {
+                    [texture(x as i64 + shift, y); 3]
+                }
+            })
+        };
+        let truth = scene(0);
+        let mut sdr = SdrImage::new(W, H);
+        for y in 0..H {
+            for x in 0..W {
+                let v = truth.get(x, y);
+                let c = v.map(|r| (resp.encode(r) * 255.0).round().clamp(0.0, 255.0) as u8);
+                let o = 3 * (y * W + x);
+                sdr.data_mut()[o..o + 3].copy_from_slice(&c);
+            }
+        }
+        let lin = HdrImage::from_fn(W, H, |x, y| {
+            sdr.get(x, y).map(|c| resp.decode(c as f32 / 255.0))
+        });
+        let (left, right) = (scene(2), scene(-2));
+        let sources = [
+            Source {
+                name: "left".into(),
+                image: &left,
+                distance_m: 1.0,
+            },
+            Source {
+                name: "right".into(),
+                image: &right,
+                distance_m: 1.0,
+            },
+        ];
+        let sun_light = |out: &HdrImage| {
+            let mut s = 0.0f32;
+            for y in 0..H {
+                for x in 0..W {
+                    if sun(x, y) {
+                        s += out.get(x, y)[1];
+                    }
+                }
+            }
+            s / 4e4
+        };
+        let p = FlowMethodParams::default();
+        let (out, rep) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap();
+        assert!(
+            rep.distant_light_px.iter().all(|&n| n > 0),
+            "{:?}",
+            rep.distant_light_px
+        );
+        let kept = sun_light(&out);
+        assert!(kept > 0.95, "share of the sun kept {kept}");
+        // Without it the flow, interpolated from the shifted texture, moves the sun.
+        let off = FlowMethodParams {
+            distant_light_deg: 0.0,
+            ..Default::default()
+        };
+        let (out, rep) = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &off).unwrap();
+        assert_eq!(rep.distant_light_px, vec![0, 0]);
+        let moved = sun_light(&out);
+        assert!(moved < 0.8 * kept, "kept {kept}, without {moved}");
     }
 }

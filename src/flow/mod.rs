@@ -2,5 +2,6 @@
 //! motion confidence, and graph-cut fusion of the warped probes.
 
 pub mod dense;
+pub mod distant;
 pub mod graphcut;
 pub mod method;

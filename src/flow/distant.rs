@@ -1,0 +1,239 @@
+//! Distant lights keep the alignment the rotation gave them.
+//!
+//! The probes are turned into the frame's orientation before the flow, so the flow
+//! only has to explain parallax. A light at infinity (the sun, sky through a far
+//! opening) has none: the rotation alone puts it where the frame sees it. Inside a
+//! clipped light, though, the tone-mapped images are flat white and the flow there
+//! is interpolated from around it; on outdoor frame 11 it moved a sun a few pixels
+//! wide by about one pixel in each probe, half of its light onto sky the frame had
+//! measured.
+//!
+//! Two probes that see a light in the same direction have no parallax for it, and a
+//! frame between them has none either. Where that holds, and where the unwarped
+//! probe also keeps more of its light inside the frame's clipped pixels than the
+//! flow-warped one, the flow is set to zero over the light and a ring around it.
+
+use super::dense::{warp_pixel, FlowField};
+use crate::image::HdrImage;
+use crate::sphere::mask::{components, dilate};
+use crate::sphere::{pixel_to_dir, row_solid_angles};
+use glam::DVec3;
+
+/// How [`hold_distant_lights`] decides.
+#[derive(Clone, Copy, Debug)]
+pub struct DistantLights {
+    /// Radiance at which the frame clips: only light above it counts.
+    pub clip_radiance: f32,
+    /// Pixels around a clipped region searched for its light (the most a flow
+    /// error is expected to move it).
+    pub ring_px: usize,
+    /// Largest angle, in radians, between the directions in which two probes see a
+    /// region's light for it to count as distant.
+    pub tolerance_rad: f64,
+}
+
+/// Where the frame clipped (`clipped`, a `w x h` mask), sets each source's flow pair
+/// (frame -> source, source -> frame) to zero over a clipped region and `ring_px`
+/// around it when every source sees the region's light in the same direction
+/// (within `tolerance_rad` of the first's) and that source, unwarped, puts a smaller
+/// share of its light outside the clipped pixels than warped along its flow. Needs
+/// two sources or more; returns the pixels set to zero per source.
+pub fn hold_distant_lights(
+    clipped: &[bool],
+    w: usize,
+    h: usize,
+    sources: &[&HdrImage],
+    flows: &mut [(FlowField, FlowField)],
+    p: &DistantLights,
+) -> Vec<usize> {
+    let n_src = sources.len().min(flows.len());
+    let mut held = vec![0usize; sources.len()];
+    let clip = p.clip_radiance;
+    if n_src < 2 || clipped.len() != w * h || !clip.is_finite() || clip <= 0.0 {
+        return held;
+    }
+    if !clipped.iter().any(|&c| c) {
+        return held;
+    }
+    let (lab, n) = components(&dilate(clipped, w, h, p.ring_px), w, h);
+    let mut pixels: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (px, &l) in lab.iter().enumerate() {
+        if l != u32::MAX {
+            pixels[l as usize].push(px);
+        }
+    }
+    let solid = row_solid_angles(w, h);
+    // Light above the clip level of one pixel value, weighted by its solid angle.
+    let above = |v: [f32; 3], row: usize| -> f64 {
+        let s: f32 = v.iter().map(|&c| (c - clip).max(0.0)).sum();
+        if s.is_finite() {
+            s as f64 * solid[row] as f64
+        } else {
+            0.0
+        }
+    };
+    for region in &pixels {
+        // Per source: light inside and outside the clipped pixels, unwarped and
+        // warped, and the light-weighted direction (unwarped).
+        let mut zero_in = vec![0.0f64; n_src];
+        let mut zero_out = vec![0.0f64; n_src];
+        let mut flow_in = vec![0.0f64; n_src];
+        let mut flow_out = vec![0.0f64; n_src];
+        let mut dirs = vec![DVec3::ZERO; n_src];
+        for &px in region {
+            let (x, y) = (px % w, px / w);
+            let d = pixel_to_dir(x, y, w, h).as_dvec3();
+            for i in 0..n_src {
+                let img = sources[i].data();
+                let unwarped = above([img[3 * px], img[3 * px + 1], img[3 * px + 2]], y);
+                let warped = above(warp_pixel(sources[i], &flows[i].0, x, y), y);
+                dirs[i] += unwarped * d;
+                if clipped[px] {
+                    zero_in[i] += unwarped;
+                    flow_in[i] += warped;
+                } else {
+                    zero_out[i] += unwarped;
+                    flow_out[i] += warped;
+                }
+            }
+        }
+        if dirs.iter().any(|d| d.length_squared() == 0.0) {
+            continue;
+        }
+        let first = dirs[0];
+        let distant = dirs[1..]
+            .iter()
+            .all(|d| d.cross(first).length().atan2(d.dot(first)) <= p.tolerance_rad);
+        if !distant {
+            continue;
+        }
+        for i in 0..n_src {
+            let share = |inside: f64, outside: f64| outside / (inside + outside);
+            let unwarped_spill = share(zero_in[i], zero_out[i]);
+            let warped_total = flow_in[i] + flow_out[i];
+            if warped_total > 0.0 && unwarped_spill >= share(flow_in[i], flow_out[i]) {
+                continue;
+            }
+            let (fwd, bwd) = &mut flows[i];
+            for &px in region {
+                fwd.data[2 * px..2 * px + 2].fill(0.0);
+                bwd.data[2 * px..2 * px + 2].fill(0.0);
+            }
+            held[i] += region.len();
+        }
+    }
+    held
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const W: usize = 96;
+    const H: usize = 48;
+
+    /// A dim sky with a sun of radiance 1e5 covering the pixels `(x, y)` for which
+    /// `sun(x, y)` holds.
+    fn sky(sun: impl Fn(usize, usize) -> bool) -> HdrImage {
+        HdrImage::from_fn(W, H, |x, y| if sun(x, y) { [1e5; 3] } else { [0.2; 3] })
+    }
+
+    fn flow(dx: f32, dy: f32) -> FlowField {
+        FlowField {
+            width: W,
+            height: H,
+            data: (0..W * H).flat_map(|_| [dx, dy]).collect(),
+        }
+    }
+
+    /// A 2 x 2 sun straddling the seam at rows 20-21.
+    fn at_seam(x: usize, y: usize) -> bool {
+        (x == 0 || x == W - 1) && (y == 20 || y == 21)
+    }
+
+    fn clipped() -> Vec<bool> {
+        (0..W * H).map(|p| at_seam(p % W, p / W)).collect()
+    }
+
+    fn params() -> DistantLights {
+        DistantLights {
+            clip_radiance: 1.0,
+            ring_px: 3,
+            tolerance_rad: 0.2f64.to_radians(),
+        }
+    }
+
+    fn zero_at(f: &FlowField, x: usize, y: usize) -> bool {
+        f.at(x, y) == (0.0, 0.0)
+    }
+
+    #[test]
+    fn a_sun_both_probes_see_in_place_keeps_zero_flow() {
+        // Both probes hold the sun where the frame clipped; the flow moved each by
+        // about a pixel (as DIS does inside flat white regions).
+        let a = sky(at_seam);
+        let b = sky(at_seam);
+        let mut flows = vec![
+            (flow(1.0, -1.0), flow(-1.0, 1.0)),
+            (flow(0.5, 0.6), flow(-0.5, -0.6)),
+        ];
+        let held = hold_distant_lights(&clipped(), W, H, &[&a, &b], &mut flows, &params());
+        assert!(held.iter().all(|&n| n > 4), "held {held:?}");
+        for (fwd, bwd) in &flows {
+            assert!(zero_at(fwd, 0, 20) && zero_at(fwd, W - 1, 21) && zero_at(fwd, 2, 22));
+            assert!(zero_at(bwd, W - 1, 20));
+            // Far from the sun the flow is untouched.
+            assert!(!zero_at(fwd, 40, 20));
+        }
+    }
+
+    #[test]
+    fn a_light_seen_with_parallax_keeps_its_flow() {
+        // The second probe sees the light two pixels lower: it is near, and the flow
+        // has parallax to explain.
+        let a = sky(at_seam);
+        let b = sky(|x, y| (x == 0 || x == W - 1) && (y == 22 || y == 23));
+        let mut flows = vec![
+            (flow(1.0, -1.0), flow(-1.0, 1.0)),
+            (flow(0.0, 2.0), flow(0.0, -2.0)),
+        ];
+        let held = hold_distant_lights(&clipped(), W, H, &[&a, &b], &mut flows, &params());
+        assert_eq!(held, vec![0, 0]);
+        assert!(!zero_at(&flows[0].0, 0, 20));
+    }
+
+    #[test]
+    fn a_flow_that_aligns_the_light_better_is_kept() {
+        // Both probes agree (the light is distant) but sit a pixel right of the
+        // frame's clipped pixels, as after a small rotation error; the flow of the
+        // first moves it back into place, the second's flow moves it further away.
+        let off = |x: usize, y: usize| (x == 0 || x == 1) && (y == 20 || y == 21);
+        let (a, b) = (sky(off), sky(off));
+        let mut flows = vec![
+            (flow(1.0, 0.0), flow(-1.0, 0.0)),
+            (flow(-1.0, 0.0), flow(1.0, 0.0)),
+        ];
+        let held = hold_distant_lights(&clipped(), W, H, &[&a, &b], &mut flows, &params());
+        assert_eq!(held[0], 0, "the aligning flow was dropped");
+        assert!(held[1] > 0, "the misaligning flow was kept");
+        assert!(!zero_at(&flows[0].0, 0, 20));
+        assert!(zero_at(&flows[1].0, 0, 20));
+    }
+
+    #[test]
+    fn one_source_or_no_clipped_pixel_changes_nothing() {
+        let a = sky(at_seam);
+        let mut flows = vec![(flow(1.0, -1.0), flow(-1.0, 1.0))];
+        assert_eq!(
+            hold_distant_lights(&clipped(), W, H, &[&a], &mut flows, &params()),
+            vec![0]
+        );
+        let mut two = vec![flows[0].clone(), flows[0].clone()];
+        let none = vec![false; W * H];
+        assert_eq!(
+            hold_distant_lights(&none, W, H, &[&a, &a], &mut two, &params()),
+            vec![0, 0]
+        );
+        assert!(!zero_at(&two[0].0, 0, 20));
+    }
+}
