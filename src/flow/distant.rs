@@ -36,8 +36,10 @@ pub struct DistantLights {
 /// (frame -> source, source -> frame) to zero over a clipped region and `ring_px`
 /// around it when every source sees the region's light in the same direction
 /// (within `tolerance_rad` of the first's) and that source, unwarped, puts a smaller
-/// share of its light outside the clipped pixels than warped along its flow. Needs
-/// two sources or more; returns the pixels set to zero per source.
+/// share of its light outside the clipped pixels than warped along its flow. Any
+/// other pixel whose flow reads a held light is set to zero too, so the light is
+/// not shown twice. Needs two sources or more; returns the pixels set to zero per
+/// source.
 pub fn hold_distant_lights(
     clipped: &[bool],
     w: usize,
@@ -72,6 +74,10 @@ pub fn hold_distant_lights(
             0.0
         }
     };
+    // Per source: pixels whose flow was set to zero, and those of them holding the
+    // source's light above the clip level.
+    let mut in_place = vec![vec![false; w * h]; n_src];
+    let mut light = vec![vec![false; w * h]; n_src];
     for region in &pixels {
         // Per source: light inside and outside the clipped pixels, unwarped and
         // warped, and the light-weighted direction (unwarped).
@@ -115,11 +121,46 @@ pub fn hold_distant_lights(
                 continue;
             }
             let (fwd, bwd) = &mut flows[i];
+            let img = sources[i].data();
             for &px in region {
                 fwd.data[2 * px..2 * px + 2].fill(0.0);
                 bwd.data[2 * px..2 * px + 2].fill(0.0);
+                in_place[i][px] = true;
+                let v = [img[3 * px], img[3 * px + 1], img[3 * px + 2]];
+                light[i][px] = above(v, px / w) > 0.0;
             }
             held[i] += region.len();
+        }
+    }
+    // A held light now sits where the rotation put it; a frame pixel elsewhere whose
+    // flow still reads it would show it twice (on sparse outdoor probes, a sun copy
+    // six pixels above the real one). Such pixels read the probe in place too.
+    for i in 0..n_src {
+        if held[i] == 0 {
+            continue;
+        }
+        let (fwd, bwd) = &mut flows[i];
+        for px in 0..w * h {
+            if in_place[i][px] {
+                continue;
+            }
+            let (x, y) = (px % w, px / w);
+            let (dx, dy) = fwd.at(x, y);
+            let (sx, sy) = (x as f32 + dx, y as f32 + dy);
+            if !(sx.is_finite() && sy.is_finite()) {
+                continue;
+            }
+            let (x0, y0) = (sx.floor() as i64, sy.floor() as i64);
+            let reads_light = [(0, 0), (1, 0), (0, 1), (1, 1)].iter().any(|&(ox, oy)| {
+                let yy = (y0 + oy).clamp(0, h as i64 - 1) as usize;
+                let xx = (x0 + ox).rem_euclid(w as i64) as usize;
+                light[i][yy * w + xx]
+            });
+            if reads_light {
+                fwd.data[2 * px..2 * px + 2].fill(0.0);
+                bwd.data[2 * px..2 * px + 2].fill(0.0);
+                held[i] += 1;
+            }
         }
     }
     held
@@ -177,6 +218,10 @@ mod tests {
             (flow(1.0, -1.0), flow(-1.0, 1.0)),
             (flow(0.5, 0.6), flow(-0.5, -0.6)),
         ];
+        // Pixel (10, 10) of the first probe's flow reads the sun, far outside its
+        // ring: it would show a second sun.
+        let o = 2 * (10 * W + 10);
+        flows[0].0.data[o..o + 2].copy_from_slice(&[-10.0, 10.5]);
         let held = hold_distant_lights(&clipped(), W, H, &[&a, &b], &mut flows, &params());
         assert!(held.iter().all(|&n| n > 4), "held {held:?}");
         for (fwd, bwd) in &flows {
@@ -185,6 +230,8 @@ mod tests {
             // Far from the sun the flow is untouched.
             assert!(!zero_at(fwd, 40, 20));
         }
+        assert!(zero_at(&flows[0].0, 10, 10), "a second sun is left");
+        assert!(!zero_at(&flows[1].0, 10, 10));
     }
 
     #[test]
