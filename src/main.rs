@@ -161,6 +161,13 @@ struct FlowOpts {
     /// flow and graph cut at 1/k size (0 = always full resolution).
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().work_width)]
     flow_work_width: usize,
+    /// Largest angle (degrees) between the probes' directions to a clipped light for
+    /// it to count as distant and keep the rotation's alignment (0 = off).
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().distant_light_deg)]
+    distant_light_deg: f32,
+    /// How far around a clipped light (degrees of longitude) its light is looked for.
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_ring_deg)]
+    light_ring_deg: f32,
 }
 
 impl FlowOpts {
@@ -179,6 +186,8 @@ impl FlowOpts {
             measured_decides: !self.cut_measured,
             dc_weight: self.dc_weight,
             work_width: self.flow_work_width,
+            distant_light_deg: self.distant_light_deg,
+            light_ring_deg: self.light_ring_deg,
             ..Default::default()
         };
         p.flow.preset = self.flow_preset;

@@ -360,6 +360,8 @@ fn fuse(
         ("colour-term weight", p.dc_weight),
         ("clipped colour-term weight", p.clipped_dc_weight),
         ("clipped Potts cost", p.clipped_potts),
+        ("distant-light angle", p.distant_light_deg),
+        ("light ring", p.light_ring_deg),
     ] {
         if v.is_nan() || v < 0.0 {
             return Err(Error::Invalid(format!(
@@ -1129,6 +1131,12 @@ mod tests {
             let e = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap_err();
             assert!(e.to_string().contains("SDR label cost"), "{e}");
         }
+        let p = FlowMethodParams {
+            light_ring_deg: f32::NAN,
+            ..Default::default()
+        };
+        let e = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap_err();
+        assert!(e.to_string().contains("light ring"), "{e}");
     }
 
     #[test]
