@@ -75,31 +75,51 @@ pub fn hold_distant_lights(
         }
     };
     // Per source: pixels whose flow was set to zero, and those of them holding the
-    // source's light above the clip level.
-    let mut in_place = vec![vec![false; w * h]; n_src];
-    let mut light = vec![vec![false; w * h]; n_src];
+    // source's light above the clip level (allocated once something is held).
+    let mut in_place: Vec<Vec<bool>> = Vec::new();
+    let mut light: Vec<Vec<bool>> = Vec::new();
+    // Directions from per-row and per-column sines and cosines, as `pixel_to_dir`.
+    let rows: Vec<(f64, f64)> = (0..h)
+        .map(|y| {
+            let d = pixel_to_dir(0, y, w, h).as_dvec3();
+            (d.y, d.x.hypot(d.z))
+        })
+        .collect();
+    let cols: Vec<(f64, f64)> = (0..w)
+        .map(|x| {
+            let d = pixel_to_dir(x, h / 2, w, h).as_dvec3();
+            let c = d.x.hypot(d.z).max(1e-300);
+            (d.x / c, -d.z / c)
+        })
+        .collect();
+    let dir = |x: usize, y: usize| {
+        let ((st, ct), (sp, cp)) = (rows[y], cols[x]);
+        DVec3::new(ct * sp, st, -ct * cp)
+    };
+    let mut zero_in = vec![0.0f64; n_src];
+    let mut zero_out = vec![0.0f64; n_src];
+    let mut flow_in = vec![0.0f64; n_src];
+    let mut flow_out = vec![0.0f64; n_src];
+    let mut dirs = vec![DVec3::ZERO; n_src];
     for region in &pixels {
-        // Per source: light inside and outside the clipped pixels, unwarped and
-        // warped, and the light-weighted direction (unwarped).
-        let mut zero_in = vec![0.0f64; n_src];
-        let mut zero_out = vec![0.0f64; n_src];
-        let mut flow_in = vec![0.0f64; n_src];
-        let mut flow_out = vec![0.0f64; n_src];
-        let mut dirs = vec![DVec3::ZERO; n_src];
+        // Per source: the light inside and outside the clipped pixels and its
+        // direction, unwarped; then, only for a distant light, the same warped.
+        zero_in.fill(0.0);
+        zero_out.fill(0.0);
+        dirs.fill(DVec3::ZERO);
         for &px in region {
             let (x, y) = (px % w, px / w);
-            let d = pixel_to_dir(x, y, w, h).as_dvec3();
             for i in 0..n_src {
                 let img = sources[i].data();
                 let unwarped = above([img[3 * px], img[3 * px + 1], img[3 * px + 2]], y);
-                let warped = above(warp_pixel(sources[i], &flows[i].0, x, y), y);
-                dirs[i] += unwarped * d;
+                if unwarped == 0.0 {
+                    continue;
+                }
+                dirs[i] += unwarped * dir(x, y);
                 if clipped[px] {
                     zero_in[i] += unwarped;
-                    flow_in[i] += warped;
                 } else {
                     zero_out[i] += unwarped;
-                    flow_out[i] += warped;
                 }
             }
         }
@@ -112,6 +132,23 @@ pub fn hold_distant_lights(
             .all(|d| d.cross(first).length().atan2(d.dot(first)) <= p.tolerance_rad);
         if !distant {
             continue;
+        }
+        flow_in.fill(0.0);
+        flow_out.fill(0.0);
+        for &px in region {
+            let (x, y) = (px % w, px / w);
+            for i in 0..n_src {
+                let warped = above(warp_pixel(sources[i], &flows[i].0, x, y), y);
+                if clipped[px] {
+                    flow_in[i] += warped;
+                } else {
+                    flow_out[i] += warped;
+                }
+            }
+        }
+        if in_place.is_empty() {
+            in_place = vec![vec![false; w * h]; n_src];
+            light = vec![vec![false; w * h]; n_src];
         }
         for i in 0..n_src {
             let share = |inside: f64, outside: f64| outside / (inside + outside);
@@ -139,15 +176,25 @@ pub fn hold_distant_lights(
         if held[i] == 0 {
             continue;
         }
+        // Rows holding the held light: a pixel whose flow lands more than a row away
+        // from them is skipped before any lookup.
+        let lit_rows = (0..h).filter(|&y| light[i][y * w..(y + 1) * w].contains(&true));
+        let (lo, hi) = lit_rows.fold((usize::MAX, 0), |(lo, hi), y| (lo.min(y), hi.max(y)));
+        if lo > hi {
+            continue;
+        }
+        let (lo, hi) = (lo as f32 - 1.0, hi as f32 + 1.0);
         let (fwd, bwd) = &mut flows[i];
         for px in 0..w * h {
-            if in_place[i][px] {
-                continue;
-            }
             let (x, y) = (px % w, px / w);
             let (dx, dy) = fwd.at(x, y);
-            let (sx, sy) = (x as f32 + dx, y as f32 + dy);
-            if !(sx.is_finite() && sy.is_finite()) {
+            let sy = y as f32 + dy;
+            // Also false for NaN.
+            if !(sy >= lo && sy < hi) || in_place[i][px] {
+                continue;
+            }
+            let sx = x as f32 + dx;
+            if !sx.is_finite() {
                 continue;
             }
             let (x0, y0) = (sx.floor() as i64, sy.floor() as i64);
