@@ -9,15 +9,21 @@
 //! measured.
 //!
 //! Two probes that see a light in the same direction have no parallax for it, and a
-//! frame between them has none either. Where that holds, and where the unwarped
-//! probe also keeps more of its light inside the frame's clipped pixels than the
-//! flow-warped one, the flow is set to zero over the light and a ring around it.
+//! frame between them has none either. Where that holds for a compact light, and
+//! where the flow-warped probe puts less of it inside the frame's clipped pixels or
+//! spills a larger share of it outside them than the unwarped probe does, the flow
+//! is set to zero over the light and a ring around it.
 
 use super::dense::{warp_pixel, FlowField};
 use crate::image::HdrImage;
 use crate::sphere::mask::{components, dilate};
-use crate::sphere::{pixel_to_dir, row_solid_angles};
+use crate::sphere::{pixel_to_dir, row_solid_angles, sample_px_by};
 use glam::DVec3;
+
+/// Widest spread (root-mean-square angle from its mean direction, in degrees) of a
+/// light that is held. A wide clipped region (a sky band) has a mean direction that
+/// says nothing about the parallax along its edges; its flow is left alone.
+pub const MAX_LIGHT_SPREAD_DEG: f64 = 5.0;
 
 /// How [`hold_distant_lights`] decides.
 #[derive(Clone, Copy, Debug)]
@@ -25,21 +31,25 @@ pub struct DistantLights {
     /// Radiance at which the frame clips: only light above it counts.
     pub clip_radiance: f32,
     /// Pixels around a clipped region searched for its light (the most a flow
-    /// error is expected to move it).
+    /// error is expected to move it), in 4-neighbour steps.
     pub ring_px: usize,
-    /// Largest angle, in radians, between the directions in which two probes see a
-    /// region's light for it to count as distant.
+    /// Largest angle, in radians, between the direction in which a probe sees a
+    /// region's light and the direction the first probe sees it in, for the light
+    /// to count as distant.
     pub tolerance_rad: f64,
 }
 
 /// Where the frame clipped (`clipped`, a `w x h` mask), sets each source's flow pair
 /// (frame -> source, source -> frame) to zero over a clipped region and `ring_px`
-/// around it when every source sees the region's light in the same direction
-/// (within `tolerance_rad` of the first's) and that source, unwarped, puts a smaller
-/// share of its light outside the clipped pixels than warped along its flow. Any
-/// other pixel whose flow reads a held light is set to zero too, so the light is
-/// not shown twice. Needs two sources or more; returns the pixels set to zero per
-/// source.
+/// around it when every source sees the region's light, compact (see
+/// [`MAX_LIGHT_SPREAD_DEG`]), in the same direction (within `tolerance_rad` of the
+/// first's), and that source, unwarped, has some of it in the clipped pixels and
+/// either more of it there or a smaller share of it outside them than warped along
+/// its flow. The forward flow of any other pixel that reads a held light is set to
+/// zero too, so the light is not shown twice (its backward flow belongs to other
+/// pixels and is kept, so the confidence sees the inconsistency). Needs two
+/// sources or more, all `w x h` like the flows; returns the pixels whose forward
+/// flow was set to zero, per source.
 pub fn hold_distant_lights(
     clipped: &[bool],
     w: usize,
@@ -51,7 +61,14 @@ pub fn hold_distant_lights(
     let n_src = sources.len().min(flows.len());
     let mut held = vec![0usize; sources.len()];
     let clip = p.clip_radiance;
-    if n_src < 2 || clipped.len() != w * h || !clip.is_finite() || clip <= 0.0 {
+    let sizes_agree = clipped.len() == w * h
+        && sources.iter().all(|s| s.width() == w && s.height() == h)
+        && flows.iter().all(|(f, b)| {
+            (f.width, f.height, b.width, b.height) == (w, h, w, h)
+                && f.data.len() == 2 * w * h
+                && b.data.len() == 2 * w * h
+        });
+    if n_src < 2 || !sizes_agree || !clip.is_finite() || clip <= 0.0 {
         return held;
     }
     if !clipped.iter().any(|&c| c) {
@@ -67,9 +84,9 @@ pub fn hold_distant_lights(
     let solid = row_solid_angles(w, h);
     // Light above the clip level of one pixel value, weighted by its solid angle.
     let above = |v: [f32; 3], row: usize| -> f64 {
-        let s: f32 = v.iter().map(|&c| (c - clip).max(0.0)).sum();
+        let s: f64 = v.iter().map(|&c| (c as f64 - clip as f64).max(0.0)).sum();
         if s.is_finite() {
-            s as f64 * solid[row] as f64
+            s * solid[row] as f64
         } else {
             0.0
         }
@@ -126,6 +143,16 @@ pub fn hold_distant_lights(
         if dirs.iter().any(|d| d.length_squared() == 0.0) {
             continue;
         }
+        // Compact: the mean of the unit directions, weighted by light, has length
+        // 1 - (mean squared angle) / 2 for a small light.
+        let min_resultant = 1.0 - 0.5 * MAX_LIGHT_SPREAD_DEG.to_radians().powi(2);
+        let compact = (0..n_src).all(|i| {
+            let total = zero_in[i] + zero_out[i];
+            total > 0.0 && dirs[i].length() >= min_resultant * total
+        });
+        if !compact {
+            continue;
+        }
         let first = dirs[0];
         let distant = dirs[1..]
             .iter()
@@ -151,10 +178,18 @@ pub fn hold_distant_lights(
             light = vec![vec![false; w * h]; n_src];
         }
         for i in 0..n_src {
-            let share = |inside: f64, outside: f64| outside / (inside + outside);
-            let unwarped_spill = share(zero_in[i], zero_out[i]);
-            let warped_total = flow_in[i] + flow_out[i];
-            if warped_total > 0.0 && unwarped_spill >= share(flow_in[i], flow_out[i]) {
+            // Share of the light outside the clipped pixels (all of it when the
+            // warp lost it entirely).
+            let spill = |inside: f64, outside: f64| {
+                if inside + outside > 0.0 {
+                    outside / (inside + outside)
+                } else {
+                    1.0
+                }
+            };
+            let flow_worse = flow_in[i] < zero_in[i]
+                || spill(flow_in[i], flow_out[i]) > spill(zero_in[i], zero_out[i]);
+            if zero_in[i] <= 0.0 || !flow_worse {
                 continue;
             }
             let (fwd, bwd) = &mut flows[i];
@@ -177,14 +212,20 @@ pub fn hold_distant_lights(
             continue;
         }
         // Rows holding the held light: a pixel whose flow lands more than a row away
-        // from them is skipped before any lookup.
+        // from them is skipped before any lookup (unless the light touches a pole,
+        // across which the sampling reflects).
         let lit_rows = (0..h).filter(|&y| light[i][y * w..(y + 1) * w].contains(&true));
         let (lo, hi) = lit_rows.fold((usize::MAX, 0), |(lo, hi), y| (lo.min(y), hi.max(y)));
         if lo > hi {
             continue;
         }
-        let (lo, hi) = (lo as f32 - 1.0, hi as f32 + 1.0);
-        let (fwd, bwd) = &mut flows[i];
+        let (lo, hi) = if lo == 0 || hi + 1 == h {
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            (lo as f32 - 1.0, hi as f32 + 1.0)
+        };
+        let lit = &light[i];
+        let fwd = &mut flows[i].0;
         for px in 0..w * h {
             let (x, y) = (px % w, px / w);
             let (dx, dy) = fwd.at(x, y);
@@ -193,19 +234,11 @@ pub fn hold_distant_lights(
             if !(sy >= lo && sy < hi) || in_place[i][px] {
                 continue;
             }
-            let sx = x as f32 + dx;
-            if !sx.is_finite() {
-                continue;
-            }
-            let (x0, y0) = (sx.floor() as i64, sy.floor() as i64);
-            let reads_light = [(0, 0), (1, 0), (0, 1), (1, 1)].iter().any(|&(ox, oy)| {
-                let yy = (y0 + oy).clamp(0, h as i64 - 1) as usize;
-                let xx = (x0 + ox).rem_euclid(w as i64) as usize;
-                light[i][yy * w + xx]
-            });
-            if reads_light {
+            // The warp's own bilinear taps and weights, on the light mask.
+            let (sx, sy) = (x as f32 + 0.5 + dx, sy + 0.5);
+            let reads = sample_px_by(w, h, sx, sy, |q| [if lit[q] { 1.0 } else { 0.0 }, 0.0, 0.0]);
+            if reads[0] > 0.0 {
                 fwd.data[2 * px..2 * px + 2].fill(0.0);
-                bwd.data[2 * px..2 * px + 2].fill(0.0);
                 held[i] += 1;
             }
         }
@@ -279,6 +312,8 @@ mod tests {
         }
         assert!(zero_at(&flows[0].0, 10, 10), "a second sun is left");
         assert!(!zero_at(&flows[1].0, 10, 10));
+        // Its backward flow is another pixel's and stays.
+        assert!(!zero_at(&flows[0].1, 10, 10));
     }
 
     #[test]
@@ -329,5 +364,35 @@ mod tests {
             vec![0, 0]
         );
         assert!(!zero_at(&two[0].0, 0, 20));
+    }
+
+    #[test]
+    fn a_light_only_in_the_ring_is_not_held() {
+        // Both probes agree on a light two pixels beside the clipped pixels, and
+        // both flows lose it entirely: holding it would put it on pixels the frame
+        // measured.
+        let beside = |x: usize, y: usize| (x == 2 || x == 3) && (y == 20 || y == 21);
+        let (a, b) = (sky(beside), sky(beside));
+        let mut flows = vec![
+            (flow(0.0, 9.0), flow(0.0, -9.0)),
+            (flow(0.0, 9.0), flow(0.0, -9.0)),
+        ];
+        let held = hold_distant_lights(&clipped(), W, H, &[&a, &b], &mut flows, &params());
+        assert_eq!(held, vec![0, 0]);
+    }
+
+    #[test]
+    fn a_clipped_sky_band_is_left_to_the_flow() {
+        // Rows 5-8 clipped all around: the probes' light has the same mean
+        // direction (straight up) but is no compact light.
+        let band = |_: usize, y: usize| (5..9).contains(&y);
+        let clipped: Vec<bool> = (0..W * H).map(|p| band(p % W, p / W)).collect();
+        let (a, b) = (sky(band), sky(band));
+        let mut flows = vec![
+            (flow(0.0, 3.0), flow(0.0, -3.0)),
+            (flow(0.0, 3.0), flow(0.0, -3.0)),
+        ];
+        let held = hold_distant_lights(&clipped, W, H, &[&a, &b], &mut flows, &params());
+        assert_eq!(held, vec![0, 0]);
     }
 }
