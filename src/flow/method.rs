@@ -82,10 +82,11 @@ pub struct FlowMethodParams {
     /// of those stages took over 10 GB. 0 = always full resolution.
     #[serde(default = "default_work_width")]
     pub work_width: usize,
-    /// Largest angle, in degrees, between the directions in which the probes see a
-    /// clipped region's light for the light to count as distant: the probes then
-    /// have no parallax for it, so the flow keeps their rotated alignment there
-    /// (see [`super::distant`]). 0 turns this off.
+    /// Largest angle, in degrees, between the direction in which each probe sees a
+    /// clipped region's light and the one the first probe sees it in, for the light
+    /// to count as distant: the probes then have no parallax for it, so the flow
+    /// keeps their rotated alignment there (see [`super::distant`]). 0 turns this
+    /// off.
     #[serde(default = "default_distant_light_deg")]
     pub distant_light_deg: f32,
     /// How far around a clipped region its light is looked for, in degrees of
@@ -197,8 +198,9 @@ pub struct FlowReport {
     pub mean_confidence: Vec<f32>,
     /// Mean flow magnitude per source, in pixels.
     pub mean_flow_px: Vec<f32>,
-    /// Pixels per source whose flow was set to zero because the probes agree that
-    /// a clipped light there is distant (see [`super::distant`]).
+    /// Pixels per source whose flow was set to zero because the probes agree that a
+    /// clipped light is distant: over the light and its ring, and wherever else the
+    /// flow read it (see [`super::distant`]).
     #[serde(default)]
     pub distant_light_px: Vec<usize>,
     /// Final energy, and its data and smoothness parts.
