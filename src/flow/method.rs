@@ -230,13 +230,13 @@ fn camera_display(img: &HdrImage, lut: &EncodeLut) -> Vec<f32> {
 
 /// The colour term Dc of one label at one pixel: the mean absolute display
 /// difference between the label (`label`, display units) and the frame (`frame`)
-/// over the three channels. A channel the frame clipped (`code >= clip_code`) only
-/// bounds the radiance from below, so there a label brighter than the frame costs
-/// nothing and only a darker one is charged.
-fn colour_cost(label: &[f32], frame: &[f32], code: &[u8], clip_code: u8) -> f32 {
+/// over the three channels. A channel the frame clipped (`clipped[k]`) only bounds
+/// the radiance from below, so there a label brighter than the frame costs nothing
+/// and only a darker one is charged.
+fn colour_cost(label: &[f32], frame: &[f32], clipped: &[bool]) -> f32 {
     (0..3)
         .map(|k| {
-            if code[k] >= clip_code {
+            if clipped[k] {
                 (frame[k] - label[k]).max(0.0)
             } else {
                 (label[k] - frame[k]).abs()
@@ -288,7 +288,7 @@ pub fn flow_frame(
     gain: f32,
     p: &FlowMethodParams,
 ) -> Result<(HdrImage, FlowReport)> {
-    let fused = fuse(sdr, sdr_linear, sources, response, gain, p)?;
+    let fused = fuse(sdr, sdr_linear, sources, response, gain, p, None)?;
     let (w, h) = (sdr.width(), sdr.height());
     let n_src = sources.len();
     let mut out = HdrImage::new(w, h);
@@ -316,7 +316,8 @@ struct Fused {
 }
 
 /// Checks, flow, confidence, costs and graph cut of [`flow_frame`], at the
-/// frame's size.
+/// frame's size. `clipped` flags, per pixel and channel, where the frame only
+/// bounds the radiance from below (default: codes at or above `p.clip_code`).
 fn fuse(
     sdr: &SdrImage,
     sdr_linear: &HdrImage,
@@ -324,8 +325,23 @@ fn fuse(
     response: &Response,
     gain: f32,
     p: &FlowMethodParams,
+    clipped: Option<&[bool]>,
 ) -> Result<Fused> {
     let (w, h) = (sdr.width(), sdr.height());
+    let from_codes: Vec<bool>;
+    let clipped_ch: &[bool] = match clipped {
+        Some(c) if c.len() == 3 * w * h => c,
+        Some(c) => {
+            return Err(Error::Invalid(format!(
+                "{} clipped-channel flags for a {w}x{h} frame",
+                c.len()
+            )))
+        }
+        None => {
+            from_codes = sdr.data().iter().map(|&c| c >= p.clip_code).collect();
+            &from_codes
+        }
+    };
     if sources.is_empty() {
         return Err(Error::Invalid(
             "the flow method needs at least one probe".into(),
@@ -437,14 +453,13 @@ fn fuse(
     // optionally averaged over a box window (wrapping across the seam). A channel
     // the frame clipped bounds the radiance from below only: a label brighter than
     // it agrees with the frame, one darker contradicts it.
-    let codes = sdr.data();
     let dcs: Vec<Vec<f32>> = warped_disp
         .iter()
         .map(|wd| {
             let raw: Vec<f32> = (0..w * h)
                 .map(|px| {
                     let (d, f) = (&wd[3 * px..3 * px + 3], &frame_disp[3 * px..3 * px + 3]);
-                    colour_cost(d, f, &codes[3 * px..3 * px + 3], p.clip_code)
+                    colour_cost(d, f, &clipped_ch[3 * px..3 * px + 3])
                 })
                 .collect();
             box_filter(&raw, w, h, p.dc_radius)
@@ -765,6 +780,20 @@ pub fn flow_frame_scaled(
     let small_disp = area_resample(ws, hs, w, h, k, |x, y| sample_px_by(w, h, x, y, display));
     let small_sdr = SdrImage::from_vec(ws, hs, crate::tonemap::quantize(small_disp.data()))?;
     drop(small_disp);
+    // A working pixel with a clipped sample in a channel only bounds that channel
+    // from below (its average counts the clipped sample at the clip level), even
+    // when the average itself falls under the clip code: a sun a few pixels wide
+    // leaves such pixels all around it.
+    let clip_flag = |i: usize| {
+        let c = &codes[3 * i..3 * i + 3];
+        [0, 1, 2].map(|k| if c[k] >= p.clip_code { 1.0f32 } else { 0.0 })
+    };
+    let small_clipped: Vec<bool> =
+        area_resample(ws, hs, w, h, k, |x, y| sample_px_by(w, h, x, y, clip_flag))
+            .data()
+            .iter()
+            .map(|&share| share > 0.0)
+            .collect();
     let small_lin = area_resample(ws, hs, w, h, k, |x, y| sample_px(sdr_linear, x, y));
     // Each source is area-averaged in its own axes to about the working size, then
     // rotated into the frame's: sampling the full-size source k x k times per
@@ -794,7 +823,15 @@ pub fn flow_frame_scaled(
         flow: p.flow.reduced(k),
         ..p.clone()
     };
-    let fused = fuse(&small_sdr, &small_lin, &plain, response, gain, &pw)?;
+    let fused = fuse(
+        &small_sdr,
+        &small_lin,
+        &plain,
+        response,
+        gain,
+        &pw,
+        Some(&small_clipped),
+    )?;
     drop(plain);
     drop(small_src);
     drop(small_lin);
@@ -950,22 +987,22 @@ mod tests {
     fn a_clipped_channel_charges_only_labels_darker_than_the_frame() {
         // Red clipped (code 255, display 1.0); green and blue measured.
         let frame = [1.0, 0.5, 0.25];
-        let code = [255, 128, 64];
+        let clipped = [true, false, false];
         // A label brighter than the clip in red agrees with the frame there.
-        let bright = colour_cost(&[1.0, 0.5, 0.25], &frame, &code, 250);
-        let brighter = colour_cost(&[1.0, 0.5, 0.25], &[0.98, 0.5, 0.25], &code, 250);
+        let bright = colour_cost(&[1.0, 0.5, 0.25], &frame, &clipped);
+        let brighter = colour_cost(&[1.0, 0.5, 0.25], &[0.98, 0.5, 0.25], &clipped);
         assert_eq!(bright, 0.0);
         assert_eq!(
             brighter, 0.0,
             "a label above a clipped channel costs nothing"
         );
         // One darker than the clip in red contradicts it.
-        let dark = colour_cost(&[0.7, 0.5, 0.25], &frame, &code, 250);
+        let dark = colour_cost(&[0.7, 0.5, 0.25], &frame, &clipped);
         assert!((dark - 0.1).abs() < 1e-6, "{dark}");
         // Measured channels are charged both ways.
-        let off = colour_cost(&[1.0, 0.8, 0.25], &frame, &code, 250);
+        let off = colour_cost(&[1.0, 0.8, 0.25], &frame, &clipped);
         assert!((off - 0.1).abs() < 1e-6, "{off}");
-        let off = colour_cost(&[1.0, 0.2, 0.25], &frame, &code, 250);
+        let off = colour_cost(&[1.0, 0.2, 0.25], &frame, &clipped);
         assert!((off - 0.1).abs() < 1e-6, "{off}");
     }
 
@@ -1297,5 +1334,56 @@ mod tests {
         assert_eq!(rep.distant_light_px, vec![0, 0]);
         let moved = sun_light(&out);
         assert!(moved < 0.8 * kept, "kept {kept}, without {moved}");
+    }
+
+    #[test]
+    fn a_working_pixel_partly_clipped_bounds_its_light_from_below() {
+        // A one-pixel lamp at full size, inside a 2 x 2 working pixel whose average
+        // code stays under the clip code. The probe with the lamp must win there
+        // over the one without it.
+        let (w, h) = (128, 64);
+        let lamp_at = |x: usize, y: usize| (x, y) == (41, 21);
+        let base = |x: usize, y: usize| {
+            let v = 0.3 + 0.1 * ((x as f32) * 0.2).sin() + 0.002 * y as f32;
+            [v, v, v]
+        };
+        let lamp = HdrImage::from_fn(
+            w,
+            h,
+            |x, y| if lamp_at(x, y) { [1e3; 3] } else { base(x, y) },
+        );
+        let dark = HdrImage::from_fn(w, h, base);
+        let resp = Response::Gamma { gamma: 2.2 };
+        let codes = lamp
+            .data()
+            .iter()
+            .map(|&v| (resp.encode(v).min(1.0) * 255.0 + 0.5) as u8)
+            .collect();
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        let lin = HdrImage::from_fn(w, h, |x, y| {
+            sdr.get(x, y).map(|c| resp.decode(c as f32 / 255.0))
+        });
+        let src = [
+            RotatedSource {
+                name: "dark".into(),
+                image: &dark,
+                rotation: Mat3::IDENTITY,
+                distance_m: 1.0,
+            },
+            RotatedSource {
+                name: "lamp".into(),
+                image: &lamp,
+                rotation: Mat3::IDENTITY,
+                distance_m: 1.0,
+            },
+        ];
+        let p = FlowMethodParams {
+            work_width: 64,
+            ..Default::default()
+        };
+        let (out, rep) = flow_frame_scaled(&sdr, &lin, &src, &resp, 1.0, &p).unwrap();
+        assert_eq!(rep.work_size, Some((64, 32)));
+        let got = out.get(41, 21)[1];
+        assert!(got > 900.0, "the lamp's pixel holds {got}");
     }
 }
