@@ -74,6 +74,46 @@ pub fn components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, usize) {
     (lab, n as usize)
 }
 
+/// The pixels within `steps` 4-neighbour steps of `seeds` (seeds included, each
+/// once), wrapping across the seam. For growing a few small regions of a large
+/// panorama: work is proportional to what is reached. `scratch` (`w * h` flags)
+/// must be all false and is left all false.
+pub fn grow_from(
+    seeds: &[usize],
+    w: usize,
+    h: usize,
+    steps: usize,
+    scratch: &mut [bool],
+) -> Vec<usize> {
+    let mut out = Vec::with_capacity(seeds.len());
+    for &s in seeds {
+        if s < w * h && !scratch[s] {
+            scratch[s] = true;
+            out.push(s);
+        }
+    }
+    let mut start = 0;
+    for _ in 0..steps {
+        let end = out.len();
+        if start == end {
+            break;
+        }
+        for k in start..end {
+            for q in neighbours4(out[k], w, h) {
+                if q != usize::MAX && !scratch[q] {
+                    scratch[q] = true;
+                    out.push(q);
+                }
+            }
+        }
+        start = end;
+    }
+    for &p in &out {
+        scratch[p] = false;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -126,5 +166,26 @@ mod tests {
         assert_eq!(lab[w + 7], lab[w]);
         assert_ne!(lab[2 * w + 1], lab[w]);
         assert_eq!(lab[0], u32::MAX);
+    }
+
+    #[test]
+    fn growing_from_seeds_reaches_what_dilation_does() {
+        let (w, h) = (17, 9);
+        let seeds = [0usize, 3 * w + 16, 8 * w + 5, 3 * w + 16];
+        let mut mask = vec![false; w * h];
+        for &s in &seeds {
+            mask[s] = true;
+        }
+        let mut scratch = vec![false; w * h];
+        for steps in 0..6 {
+            let mut got = vec![false; w * h];
+            let list = grow_from(&seeds, w, h, steps, &mut scratch);
+            for &p in &list {
+                assert!(!got[p], "pixel {p} listed twice");
+                got[p] = true;
+            }
+            assert_eq!(got, dilate(&mask, w, h, steps), "steps {steps}");
+            assert!(scratch.iter().all(|&s| !s), "scratch left dirty");
+        }
     }
 }
