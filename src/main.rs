@@ -168,6 +168,10 @@ struct FlowOpts {
     /// How far around a clipped light (degrees of longitude) its light is looked for.
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_ring_deg)]
     light_ring_deg: f32,
+    /// Hybrid: how far (degrees of longitude) from a clipped light the warp stage may
+    /// have moved it; a distant light there is put back where the rotation puts it.
+    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_reach_deg)]
+    light_reach_deg: f32,
 }
 
 impl FlowOpts {
@@ -188,6 +192,7 @@ impl FlowOpts {
             work_width: self.flow_work_width,
             distant_light_deg: self.distant_light_deg,
             light_ring_deg: self.light_ring_deg,
+            light_reach_deg: self.light_reach_deg,
             ..Default::default()
         };
         p.flow.preset = self.flow_preset;

@@ -16,7 +16,7 @@
 
 use super::dense::{warp_pixel, FlowField};
 use crate::image::HdrImage;
-use crate::sphere::mask::{components, dilate};
+use crate::sphere::mask::{components, dilate, grow_from};
 use crate::sphere::{pixel_to_dir, row_solid_angles, sample_px_by};
 use glam::DVec3;
 
@@ -81,85 +81,24 @@ pub fn hold_distant_lights(
             pixels[l as usize].push(px);
         }
     }
-    let solid = row_solid_angles(w, h);
-    // Light above the clip level of one pixel value, weighted by its solid angle.
-    let above = |v: [f32; 3], row: usize| -> f64 {
-        let s: f64 = v.iter().map(|&c| (c as f64 - clip as f64).max(0.0)).sum();
-        if s.is_finite() {
-            s * solid[row] as f64
-        } else {
-            0.0
-        }
-    };
+    let meter = LightMeter::new(w, h, clip);
+    let above = |v: [f32; 3], row: usize| meter.above(v, row);
     // Per source: pixels whose flow was set to zero, and those of them holding the
     // source's light above the clip level (allocated once something is held).
     let mut in_place: Vec<Vec<bool>> = Vec::new();
     let mut light: Vec<Vec<bool>> = Vec::new();
-    // Directions from per-row and per-column sines and cosines, as `pixel_to_dir`.
-    let rows: Vec<(f64, f64)> = (0..h)
-        .map(|y| {
-            let d = pixel_to_dir(0, y, w, h).as_dvec3();
-            (d.y, d.x.hypot(d.z))
-        })
-        .collect();
-    let cols: Vec<(f64, f64)> = (0..w)
-        .map(|x| {
-            let d = pixel_to_dir(x, h / 2, w, h).as_dvec3();
-            let c = d.x.hypot(d.z).max(1e-300);
-            (d.x / c, -d.z / c)
-        })
-        .collect();
-    let dir = |x: usize, y: usize| {
-        let ((st, ct), (sp, cp)) = (rows[y], cols[x]);
-        DVec3::new(ct * sp, st, -ct * cp)
-    };
-    let mut zero_in = vec![0.0f64; n_src];
-    let mut zero_out = vec![0.0f64; n_src];
     let mut flow_in = vec![0.0f64; n_src];
     let mut flow_out = vec![0.0f64; n_src];
-    let mut dirs = vec![DVec3::ZERO; n_src];
     for region in &pixels {
-        // Per source: the light inside and outside the clipped pixels and its
-        // direction, unwarped; then, only for a distant light, the same warped.
-        zero_in.fill(0.0);
-        zero_out.fill(0.0);
-        dirs.fill(DVec3::ZERO);
-        for &px in region {
-            let (x, y) = (px % w, px / w);
-            for i in 0..n_src {
-                let img = sources[i].data();
-                let unwarped = above([img[3 * px], img[3 * px + 1], img[3 * px + 2]], y);
-                if unwarped == 0.0 {
-                    continue;
-                }
-                dirs[i] += unwarped * dir(x, y);
-                if clipped[px] {
-                    zero_in[i] += unwarped;
-                } else {
-                    zero_out[i] += unwarped;
-                }
-            }
-        }
-        if dirs.iter().any(|d| d.length_squared() == 0.0) {
+        // Per source: the light inside and outside the clipped pixels, unwarped;
+        // then, only for a distant light, the same warped.
+        let Some(RegionLight {
+            inside: zero_in,
+            outside: zero_out,
+        }) = meter.distant_light(region, clipped, &sources[..n_src], p.tolerance_rad)
+        else {
             continue;
-        }
-        // Compact: the mean of the unit directions, weighted by light, has length
-        // 1 - (mean squared angle) / 2 for a small light.
-        let min_resultant = 1.0 - 0.5 * MAX_LIGHT_SPREAD_DEG.to_radians().powi(2);
-        let compact = (0..n_src).all(|i| {
-            let total = zero_in[i] + zero_out[i];
-            total > 0.0 && dirs[i].length() >= min_resultant * total
-        });
-        if !compact {
-            continue;
-        }
-        let first = dirs[0];
-        let distant = dirs[1..]
-            .iter()
-            .all(|d| d.cross(first).length().atan2(d.dot(first)) <= p.tolerance_rad);
-        if !distant {
-            continue;
-        }
+        };
         flow_in.fill(0.0);
         flow_out.fill(0.0);
         for &px in region {
@@ -178,15 +117,6 @@ pub fn hold_distant_lights(
             light = vec![vec![false; w * h]; n_src];
         }
         for i in 0..n_src {
-            // Share of the light outside the clipped pixels (all of it when the
-            // warp lost it entirely).
-            let spill = |inside: f64, outside: f64| {
-                if inside + outside > 0.0 {
-                    outside / (inside + outside)
-                } else {
-                    1.0
-                }
-            };
             let flow_worse = flow_in[i] < zero_in[i]
                 || spill(flow_in[i], flow_out[i]) > spill(zero_in[i], zero_out[i]);
             if zero_in[i] <= 0.0 || !flow_worse {
@@ -244,6 +174,218 @@ pub fn hold_distant_lights(
         }
     }
     held
+}
+
+/// Where the frame clipped (`clipped`, `w x h`), puts a distant light back where
+/// the rotation alone puts it in each `warped` source, from the same source merely
+/// rotated into the frame (`rotated`, same order and size). For the hybrid, whose
+/// sources come through the warp method: a face's homography is fitted to the
+/// features it matched, mostly near ones, and moves a light at infinity by their
+/// parallax (outdoor frame 19 at a reduced working size: a sun 11 pixels off,
+/// then lost by the flow stage). The light counts as distant when every rotated
+/// source sees it compact and in the same direction (as [`hold_distant_lights`]);
+/// a warped source is mended when it puts less of it inside the clipped pixels or
+/// a larger share outside them than its rotation does, counting its own light
+/// above the clip level within `reach_px` steps of the region (where the
+/// homography may have moved it). The region, that light and `ring_px` around them
+/// take the rotated source's values. Returns the pixels replaced, per source.
+pub fn restore_distant_lights(
+    clipped: &[bool],
+    w: usize,
+    h: usize,
+    rotated: &[&HdrImage],
+    warped: &mut [HdrImage],
+    p: &DistantLights,
+    reach_px: usize,
+) -> Vec<usize> {
+    let n_src = rotated.len().min(warped.len());
+    let mut restored = vec![0usize; warped.len()];
+    let clip = p.clip_radiance;
+    let sizes_agree = clipped.len() == w * h
+        && rotated.iter().all(|s| s.width() == w && s.height() == h)
+        && warped.iter().all(|s| s.width() == w && s.height() == h);
+    if n_src < 2 || !sizes_agree || !clip.is_finite() || clip <= 0.0 {
+        return restored;
+    }
+    if !clipped.iter().any(|&c| c) {
+        return restored;
+    }
+    let (lab, n) = components(&dilate(clipped, w, h, p.ring_px), w, h);
+    let mut pixels: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (px, &l) in lab.iter().enumerate() {
+        if l != u32::MAX {
+            pixels[l as usize].push(px);
+        }
+    }
+    let meter = LightMeter::new(w, h, clip);
+    let value = |img: &HdrImage, px: usize| {
+        let d = img.data();
+        [d[3 * px], d[3 * px + 1], d[3 * px + 2]]
+    };
+    let mut scratch = vec![false; w * h];
+    for (k, region) in pixels.iter().enumerate() {
+        let Some(light) = meter.distant_light(region, clipped, &rotated[..n_src], p.tolerance_rad)
+        else {
+            continue;
+        };
+        let near = grow_from(region, w, h, reach_px, &mut scratch);
+        for i in 0..n_src {
+            if light.inside[i] <= 0.0 {
+                continue;
+            }
+            // The region and the warped source's light near it.
+            let span: Vec<usize> = near
+                .iter()
+                .copied()
+                .filter(|&q| lab[q] == k as u32 || meter.above(value(&warped[i], q), q / w) > 0.0)
+                .collect();
+            let (mut w_in, mut w_out, mut r_in, mut r_out) = (0.0, 0.0, 0.0, 0.0);
+            for &q in &span {
+                let (wv, rv) = (
+                    meter.above(value(&warped[i], q), q / w),
+                    meter.above(value(rotated[i], q), q / w),
+                );
+                if clipped[q] {
+                    w_in += wv;
+                    r_in += rv;
+                } else {
+                    w_out += wv;
+                    r_out += rv;
+                }
+            }
+            let warp_worse = w_in < r_in || spill(w_in, w_out) > spill(r_in, r_out);
+            if !warp_worse {
+                continue;
+            }
+            let patch = grow_from(&span, w, h, p.ring_px, &mut scratch);
+            let src = rotated[i].data();
+            let dst = warped[i].data_mut();
+            for &q in &patch {
+                dst[3 * q..3 * q + 3].copy_from_slice(&src[3 * q..3 * q + 3]);
+            }
+            restored[i] += patch.len();
+        }
+    }
+    restored
+}
+
+/// A distant, compact light of one clipped region, per source: its light above
+/// the clip level (weighted by solid angle) inside the frame's clipped pixels and
+/// outside them.
+struct RegionLight {
+    inside: Vec<f64>,
+    outside: Vec<f64>,
+}
+
+/// Light above the clip level and pixel directions of a `w x h` panorama.
+struct LightMeter {
+    clip: f32,
+    solid: Vec<f32>,
+    /// Per row: sine and cosine of the latitude.
+    rows: Vec<(f64, f64)>,
+    /// Per column: sine and cosine of the longitude, as `pixel_to_dir`.
+    cols: Vec<(f64, f64)>,
+}
+
+impl LightMeter {
+    fn new(w: usize, h: usize, clip: f32) -> Self {
+        let rows = (0..h)
+            .map(|y| {
+                let d = pixel_to_dir(0, y, w, h).as_dvec3();
+                (d.y, d.x.hypot(d.z))
+            })
+            .collect();
+        let cols = (0..w)
+            .map(|x| {
+                let d = pixel_to_dir(x, h / 2, w, h).as_dvec3();
+                let c = d.x.hypot(d.z).max(1e-300);
+                (d.x / c, -d.z / c)
+            })
+            .collect();
+        LightMeter {
+            clip,
+            solid: row_solid_angles(w, h),
+            rows,
+            cols,
+        }
+    }
+
+    /// Light above the clip level of one pixel value in row `row`, weighted by its
+    /// solid angle (0 for non-finite values).
+    fn above(&self, v: [f32; 3], row: usize) -> f64 {
+        let s: f64 = v
+            .iter()
+            .map(|&c| (c as f64 - self.clip as f64).max(0.0))
+            .sum();
+        if s.is_finite() {
+            s * self.solid[row] as f64
+        } else {
+            0.0
+        }
+    }
+
+    fn dir(&self, x: usize, y: usize) -> DVec3 {
+        let ((st, ct), (sp, cp)) = (self.rows[y], self.cols[x]);
+        DVec3::new(ct * sp, st, -ct * cp)
+    }
+
+    /// The light of a region (pixel indices; `clipped` marks the frame's clipped
+    /// ones) when every source sees some of it, compact (see
+    /// [`MAX_LIGHT_SPREAD_DEG`]), in the same direction (within `tolerance_rad` of
+    /// the first source's); `None` otherwise.
+    fn distant_light(
+        &self,
+        region: &[usize],
+        clipped: &[bool],
+        sources: &[&HdrImage],
+        tolerance_rad: f64,
+    ) -> Option<RegionLight> {
+        let n = sources.len();
+        let w = self.cols.len();
+        let mut inside = vec![0.0f64; n];
+        let mut outside = vec![0.0f64; n];
+        let mut dirs = vec![DVec3::ZERO; n];
+        for &px in region {
+            let (x, y) = (px % w, px / w);
+            for i in 0..n {
+                let img = sources[i].data();
+                let v = self.above([img[3 * px], img[3 * px + 1], img[3 * px + 2]], y);
+                if v == 0.0 {
+                    continue;
+                }
+                dirs[i] += v * self.dir(x, y);
+                if clipped[px] {
+                    inside[i] += v;
+                } else {
+                    outside[i] += v;
+                }
+            }
+        }
+        if n == 0 || dirs.iter().any(|d| d.length_squared() == 0.0) {
+            return None;
+        }
+        // Compact: the mean of the unit directions, weighted by light, has length
+        // 1 - (mean squared angle) / 2 for a small light.
+        let min_resultant = 1.0 - 0.5 * MAX_LIGHT_SPREAD_DEG.to_radians().powi(2);
+        let compact = (0..n).all(|i| {
+            let total = inside[i] + outside[i];
+            total > 0.0 && dirs[i].length() >= min_resultant * total
+        });
+        let first = dirs[0];
+        let distant = dirs[1..]
+            .iter()
+            .all(|d| d.cross(first).length().atan2(d.dot(first)) <= tolerance_rad);
+        (compact && distant).then_some(RegionLight { inside, outside })
+    }
+}
+
+/// Share of a light outside the clipped pixels (all of it when there is none).
+fn spill(inside: f64, outside: f64) -> f64 {
+    if inside + outside > 0.0 {
+        outside / (inside + outside)
+    } else {
+        1.0
+    }
 }
 
 #[cfg(test)]
@@ -394,5 +536,85 @@ mod tests {
         ];
         let held = hold_distant_lights(&clipped, W, H, &[&a, &b], &mut flows, &params());
         assert_eq!(held, vec![0, 0]);
+    }
+
+    /// Light above the clip level (1.0) of an image inside `(x0..x1, y0..y1)`.
+    fn light_in(img: &HdrImage, xs: std::ops::Range<usize>, ys: std::ops::Range<usize>) -> f32 {
+        ys.flat_map(|y| xs.clone().map(move |x| (x, y)))
+            .map(|(x, y)| (img.get(x, y)[0] - 1.0).max(0.0))
+            .sum()
+    }
+
+    /// A 2 x 2 sun at columns 30-31, rows 20-21 (where the frame clipped).
+    fn in_place(x: usize, y: usize) -> bool {
+        (30..32).contains(&x) && (20..22).contains(&y)
+    }
+
+    fn clipped_at_30() -> Vec<bool> {
+        (0..W * H).map(|p| in_place(p % W, p / W)).collect()
+    }
+
+    #[test]
+    fn a_warp_that_moved_a_distant_sun_gets_it_back_from_the_rotation() {
+        // Both rotated probes hold the sun where the frame clipped; the first
+        // probe's warp moved it 5 pixels right and 4 down (a homography fitted to
+        // near features), the second's left it in place.
+        let rotated = [sky(in_place), sky(in_place)];
+        let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
+        let mut warped = vec![sky(moved), sky(in_place)];
+        let before = warped[1].clone();
+        let refs: Vec<&HdrImage> = rotated.iter().collect();
+        let n = restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut warped, &params(), 12);
+        assert!(n[0] > 4, "nothing restored: {n:?}");
+        assert_eq!(n[1], 0, "a warp with the sun in place was changed");
+        assert_eq!(warped[1].data(), before.data());
+        assert!(
+            light_in(&warped[0], 30..32, 20..22) > 3.0e5,
+            "the sun is not back"
+        );
+        assert_eq!(
+            light_in(&warped[0], 33..40, 22..28),
+            0.0,
+            "the moved copy is left"
+        );
+    }
+
+    #[test]
+    fn a_sun_moved_beyond_the_reach_or_seen_with_parallax_is_left() {
+        let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
+        let refs_agree = [sky(in_place), sky(in_place)];
+        let refs: Vec<&HdrImage> = refs_agree.iter().collect();
+        // Beyond the reach, the moved copy is not seen: the warp has no light near
+        // the region, which still counts as worse, so the region is mended but the
+        // far copy stays.
+        let mut warped = vec![sky(moved), sky(in_place)];
+        restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut warped, &params(), 0);
+        assert!(light_in(&warped[0], 30..32, 20..22) > 3.0e5);
+        assert!(
+            light_in(&warped[0], 35..37, 24..26) > 3.0e5,
+            "a light beyond the reach was removed"
+        );
+        // The rotated probes disagree by two rows: the light is near, and the
+        // warp's placement stands.
+        let lower = |x: usize, y: usize| (30..32).contains(&x) && (22..24).contains(&y);
+        let parallax = [sky(in_place), sky(lower)];
+        let refs: Vec<&HdrImage> = parallax.iter().collect();
+        let mut warped = vec![sky(moved), sky(moved)];
+        let n = restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut warped, &params(), 12);
+        assert_eq!(n, vec![0, 0]);
+        assert!(light_in(&warped[0], 35..37, 24..26) > 3.0e5);
+    }
+
+    #[test]
+    fn restoring_with_mismatched_sizes_or_one_probe_changes_nothing() {
+        let rotated = [sky(in_place), sky(in_place)];
+        let refs: Vec<&HdrImage> = rotated.iter().collect();
+        let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
+        let mut one = vec![sky(moved)];
+        let n = restore_distant_lights(&clipped_at_30(), W, H, &refs[..1], &mut one, &params(), 12);
+        assert_eq!(n, vec![0]);
+        let mut small = vec![HdrImage::new(W / 2, H / 2), HdrImage::new(W / 2, H / 2)];
+        let n = restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut small, &params(), 12);
+        assert_eq!(n, vec![0, 0]);
     }
 }

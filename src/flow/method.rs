@@ -6,7 +6,7 @@
 use super::dense::{
     confidence_with, pano_flow, texture_confidence, warp_backward, FlowField, FlowParams,
 };
-use super::distant::{hold_distant_lights, DistantLights};
+use super::distant::{hold_distant_lights, restore_distant_lights, DistantLights};
 use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
@@ -93,6 +93,16 @@ pub struct FlowMethodParams {
     /// longitude: the most a flow error is expected to move it.
     #[serde(default = "default_light_ring_deg")]
     pub light_ring_deg: f32,
+    /// Hybrid only: how far (degrees of longitude) from a clipped region the warp
+    /// stage may have moved its distant light; such a light is put back where the
+    /// rotation puts it before the flow (see [`restore_warped_lights`]). Needs
+    /// `distant_light_deg` > 0.
+    #[serde(default = "default_light_reach_deg")]
+    pub light_reach_deg: f32,
+}
+
+fn default_light_reach_deg() -> f32 {
+    12.0
 }
 
 fn default_distant_light_deg() -> f32 {
@@ -144,6 +154,7 @@ impl Default for FlowMethodParams {
             work_width: default_work_width(),
             distant_light_deg: default_distant_light_deg(),
             light_ring_deg: default_light_ring_deg(),
+            light_reach_deg: default_light_reach_deg(),
         }
     }
 }
@@ -203,6 +214,10 @@ pub struct FlowReport {
     /// flow read it (see [`super::distant`]).
     #[serde(default)]
     pub distant_light_px: Vec<usize>,
+    /// Hybrid: pixels per probe whose warped values were replaced by the rotated
+    /// probe's to put a distant light back (see [`restore_warped_lights`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub restored_light_px: Vec<usize>,
     /// Final energy, and its data and smoothness parts.
     pub energy: f64,
     /// Data part of the energy.
@@ -380,6 +395,7 @@ fn fuse(
         ("clipped Potts cost", p.clipped_potts),
         ("distant-light angle", p.distant_light_deg),
         ("light ring", p.light_ring_deg),
+        ("light reach", p.light_reach_deg),
     ] {
         if v.is_nan() || v < 0.0 {
             return Err(Error::Invalid(format!(
@@ -413,12 +429,17 @@ fn fuse(
             .collect()
     };
     let mut flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
-    // Where the frame clipped, a light the probes see in the same direction keeps
-    // the rotation's alignment.
     let clipped_px: Vec<bool> = sdr
         .data()
         .chunks_exact(3)
         .map(|c| c.iter().any(|&v| v >= p.clip_code))
+        .collect();
+    // Where the frame clipped, a light the probes see in the same direction keeps
+    // the rotation's alignment. At a reduced working size a light smaller than a
+    // working pixel clips none of them whole: any clipped sample counts.
+    let light_clipped: Vec<bool> = clipped_ch
+        .chunks_exact(3)
+        .map(|c| c.contains(&true))
         .collect();
     let distant_light_px = if p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0 {
         let images: Vec<&HdrImage> = sources.iter().map(|s| s.image).collect();
@@ -427,7 +448,7 @@ fn fuse(
             ring_px: (p.light_ring_deg.max(0.0) / 360.0 * w as f32).ceil() as usize,
             tolerance_rad: (p.distant_light_deg as f64).to_radians(),
         };
-        hold_distant_lights(&clipped_px, w, h, &images, &mut flows, &settings)
+        hold_distant_lights(&light_clipped, w, h, &images, &mut flows, &settings)
     } else {
         vec![0; sources.len()]
     };
@@ -636,6 +657,7 @@ fn fuse(
         mean_confidence: confs.iter().map(|c| c.iter().sum::<f32>() / npx).collect(),
         mean_flow_px: flows.iter().map(|(f, _)| f.mean_magnitude()).collect(),
         distant_light_px,
+        restored_light_px: Vec::new(),
         energy: e,
         data_energy: ed,
         smooth_energy: es,
@@ -719,6 +741,73 @@ fn with_images<'a>(sources: &[RotatedSource], images: &[&'a HdrImage]) -> Vec<So
             distance_m: s.distance_m,
         })
         .collect()
+}
+
+/// The hybrid's step between its two stages: where the frame clipped, a distant
+/// light that a warped probe (`warped`, at the frame's size) holds elsewhere than
+/// the same probe merely rotated into the frame (`unwarped`, same order) is put
+/// back where the rotation puts it, with the rotated probe's values over the light
+/// and a ring around it (see [`super::distant::restore_distant_lights`]). Off with
+/// `distant_light_deg` 0, and a no-op on frames without clipped pixels. Returns
+/// the pixels replaced per probe.
+pub fn restore_warped_lights(
+    sdr: &SdrImage,
+    warped: &mut [HdrImage],
+    unwarped: &[RotatedSource],
+    response: &Response,
+    gain: f32,
+    p: &FlowMethodParams,
+) -> Result<Vec<usize>> {
+    let (w, h) = (sdr.width(), sdr.height());
+    if warped.len() != unwarped.len() {
+        return Err(Error::Invalid(format!(
+            "{} warped probes for {} probes",
+            warped.len(),
+            unwarped.len()
+        )));
+    }
+    if let Some(img) = warped.iter().find(|i| i.width() != w || i.height() != h) {
+        return Err(Error::Invalid(format!(
+            "a warped probe is {}x{}, the frame {w}x{h}",
+            img.width(),
+            img.height()
+        )));
+    }
+    for (name, v) in [
+        ("distant-light angle", p.distant_light_deg),
+        ("light ring", p.light_ring_deg),
+        ("light reach", p.light_reach_deg),
+    ] {
+        if v.is_nan() || v < 0.0 {
+            return Err(Error::Invalid(format!(
+                "flow method: {name} is {v}; it must be a number >= 0"
+            )));
+        }
+    }
+    let clipped: Vec<bool> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= p.clip_code))
+        .collect();
+    let usable = p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0;
+    if !usable || warped.len() < 2 || !clipped.contains(&true) {
+        return Ok(vec![0; warped.len()]);
+    }
+    let rotated: Vec<HdrImage> = unwarped
+        .iter()
+        .map(|s| crate::sphere::rotate(s.image, s.rotation, w, h))
+        .collect();
+    let rotated: Vec<&HdrImage> = rotated.iter().collect();
+    let px_per_deg = w as f32 / 360.0;
+    let settings = DistantLights {
+        clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
+        ring_px: (p.light_ring_deg * px_per_deg).ceil() as usize,
+        tolerance_rad: (p.distant_light_deg as f64).to_radians(),
+    };
+    let reach = (p.light_reach_deg * px_per_deg).ceil() as usize;
+    Ok(restore_distant_lights(
+        &clipped, w, h, &rotated, warped, &settings, reach,
+    ))
 }
 
 /// The flow method on sources seen through rotations, for frames of any size.
@@ -1176,6 +1265,34 @@ mod tests {
         };
         let e = flow_frame(&sdr, &lin, &sources, &resp, 1.0, &p).unwrap_err();
         assert!(e.to_string().contains("light ring"), "{e}");
+    }
+
+    #[test]
+    fn restoring_warped_lights_checks_sizes_and_settings() {
+        let (sdr, lin, resp) = frame();
+        let src = source(&lin, |_, _| 50.0);
+        let unwarped: Vec<RotatedSource> = (0..2)
+            .map(|i| RotatedSource {
+                name: format!("probe{i}"),
+                image: &src,
+                rotation: Mat3::IDENTITY,
+                distance_m: 1.0,
+            })
+            .collect();
+        let p = FlowMethodParams::default();
+        let mut small = vec![HdrImage::new(4, 2), HdrImage::new(4, 2)];
+        let e = restore_warped_lights(&sdr, &mut small, &unwarped, &resp, 1.0, &p).unwrap_err();
+        assert!(e.to_string().contains("4x2"), "{e}");
+        let mut one = vec![src.clone()];
+        let e = restore_warped_lights(&sdr, &mut one, &unwarped, &resp, 1.0, &p).unwrap_err();
+        assert!(e.to_string().contains("1 warped probes for 2"), "{e}");
+        let nan = FlowMethodParams {
+            light_reach_deg: f32::NAN,
+            ..Default::default()
+        };
+        let mut two = vec![src.clone(), src.clone()];
+        let e = restore_warped_lights(&sdr, &mut two, &unwarped, &resp, 1.0, &nan).unwrap_err();
+        assert!(e.to_string().contains("light reach"), "{e}");
     }
 
     #[test]

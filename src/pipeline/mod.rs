@@ -12,7 +12,9 @@ pub mod render_eval;
 pub mod sweep;
 
 use crate::error::{Error, Result};
-use crate::flow::method::{flow_frame_scaled, FlowMethodParams, FlowReport, RotatedSource};
+use crate::flow::method::{
+    flow_frame_scaled, restore_warped_lights, FlowMethodParams, FlowReport, RotatedSource,
+};
 use crate::fusion::lights::{pair_lights, PairLights};
 use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
 use crate::image::{io, HdrImage, SdrImage};
@@ -650,24 +652,41 @@ pub fn predict_frame(
                 }
                 probes.push(pp);
             }
-            let sources: Vec<RotatedSource> = used
-                .iter()
-                .enumerate()
-                .map(|(i, &u)| {
-                    let (image, rotation) = if params.method == Method::Hybrid {
-                        (&warped[i], glam::Mat3::IDENTITY)
+            let rotated_source = |i: usize, image| RotatedSource {
+                name: scene.probes[used[i]].id.clone(),
+                image,
+                rotation: frame.pose.from_other(&probes[i].pose),
+                distance_m: distance_m(scene.probes[used[i]].pose.position, frame.pose.position),
+            };
+            // The hybrid's warp may move a light at infinity by the parallax of the
+            // features its homographies fitted; the rotation alone puts it in place.
+            let mut restored = Vec::new();
+            if params.method == Method::Hybrid && (w, h) == (sdr.width(), sdr.height()) {
+                let unwarped: Vec<RotatedSource> = (0..used.len())
+                    .map(|i| rotated_source(i, &*probes[i].image))
+                    .collect();
+                restored = restore_warped_lights(
+                    sdr,
+                    &mut warped,
+                    &unwarped,
+                    &scene.response,
+                    scene.path_gain,
+                    &params.flow,
+                )?;
+            }
+            let sources: Vec<RotatedSource> = (0..used.len())
+                .map(|i| {
+                    if params.method == Method::Hybrid {
+                        RotatedSource {
+                            rotation: glam::Mat3::IDENTITY,
+                            ..rotated_source(i, &warped[i])
+                        }
                     } else {
-                        (&*probes[i].image, frame.pose.from_other(&probes[i].pose))
-                    };
-                    RotatedSource {
-                        name: scene.probes[u].id.clone(),
-                        image,
-                        rotation,
-                        distance_m: distance_m(scene.probes[u].pose.position, frame.pose.position),
+                        rotated_source(i, &*probes[i].image)
                     }
                 })
                 .collect();
-            let (img, r) = flow_frame_scaled(
+            let (img, mut r) = flow_frame_scaled(
                 sdr,
                 lin,
                 &sources,
@@ -675,6 +694,7 @@ pub fn predict_frame(
                 scene.path_gain,
                 &params.flow,
             )?;
+            r.restored_light_px = restored;
             (img, first_warp, Some(r), None)
         }
     })
