@@ -17,8 +17,8 @@
 use super::dense::{warp_pixel, FlowField};
 use crate::image::HdrImage;
 use crate::sphere::mask::{components, dilate, grow_from};
-use crate::sphere::{pixel_to_dir, row_solid_angles, sample_px_by};
-use glam::DVec3;
+use crate::sphere::{pixel_to_dir, row_solid_angles, sample_dir, sample_px_by};
+use glam::{DVec3, Mat3};
 
 /// Widest spread (root-mean-square angle from its mean direction, in degrees) of a
 /// light that is held. A wide clipped region (a sky band) has a mean direction that
@@ -193,7 +193,7 @@ pub fn restore_distant_lights(
     clipped: &[bool],
     w: usize,
     h: usize,
-    rotated: &[&HdrImage],
+    rotated: &[RotatedView],
     warped: &mut [HdrImage],
     p: &DistantLights,
     reach_px: usize,
@@ -202,7 +202,7 @@ pub fn restore_distant_lights(
     let mut restored = vec![0usize; warped.len()];
     let clip = p.clip_radiance;
     let sizes_agree = clipped.len() == w * h
-        && rotated.iter().all(|s| s.width() == w && s.height() == h)
+        && rotated.iter().all(|s| (s.width, s.height) == (w, h))
         && warped.iter().all(|s| s.width() == w && s.height() == h);
     if n_src < 2 || !sizes_agree || !clip.is_finite() || clip <= 0.0 {
         return restored;
@@ -218,10 +218,6 @@ pub fn restore_distant_lights(
         }
     }
     let meter = LightMeter::new(w, h, clip);
-    let value = |img: &HdrImage, px: usize| {
-        let d = img.data();
-        [d[3 * px], d[3 * px + 1], d[3 * px + 2]]
-    };
     let mut scratch = vec![false; w * h];
     for (k, region) in pixels.iter().enumerate() {
         let Some(light) = meter.distant_light(region, clipped, &rotated[..n_src], p.tolerance_rad)
@@ -237,13 +233,13 @@ pub fn restore_distant_lights(
             let span: Vec<usize> = near
                 .iter()
                 .copied()
-                .filter(|&q| lab[q] == k as u32 || meter.above(value(&warped[i], q), q / w) > 0.0)
+                .filter(|&q| lab[q] == k as u32 || meter.above(warped[i].value(q), q / w) > 0.0)
                 .collect();
             let (mut w_in, mut w_out, mut r_in, mut r_out) = (0.0, 0.0, 0.0, 0.0);
             for &q in &span {
                 let (wv, rv) = (
-                    meter.above(value(&warped[i], q), q / w),
-                    meter.above(value(rotated[i], q), q / w),
+                    meter.above(warped[i].value(q), q / w),
+                    meter.above(rotated[i].value(q), q / w),
                 );
                 if clipped[q] {
                     w_in += wv;
@@ -258,15 +254,54 @@ pub fn restore_distant_lights(
                 continue;
             }
             let patch = grow_from(&span, w, h, p.ring_px, &mut scratch);
-            let src = rotated[i].data();
             let dst = warped[i].data_mut();
             for &q in &patch {
-                dst[3 * q..3 * q + 3].copy_from_slice(&src[3 * q..3 * q + 3]);
+                dst[3 * q..3 * q + 3].copy_from_slice(&rotated[i].value(q));
             }
             restored[i] += patch.len();
         }
     }
     restored
+}
+
+/// Per-pixel radiance of a `w x h` panorama, read one pixel at a time.
+trait Pixels {
+    fn value(&self, px: usize) -> [f32; 3];
+}
+
+impl Pixels for &HdrImage {
+    fn value(&self, px: usize) -> [f32; 3] {
+        let d = self.data();
+        [d[3 * px], d[3 * px + 1], d[3 * px + 2]]
+    }
+}
+
+impl Pixels for HdrImage {
+    fn value(&self, px: usize) -> [f32; 3] {
+        (&self).value(px)
+    }
+}
+
+/// A panorama seen through a rotation at the frame's size (`rotation * d` is the
+/// panorama's direction for frame direction `d`, as
+/// [`crate::flow::method::RotatedSource`]), sampled on demand: the few pixels
+/// around a light cost far less than rotating the whole panorama at full size.
+pub struct RotatedView<'a> {
+    /// The panorama.
+    pub image: &'a HdrImage,
+    /// Frame direction to panorama direction.
+    pub rotation: Mat3,
+    /// The frame's width.
+    pub width: usize,
+    /// The frame's height.
+    pub height: usize,
+}
+
+impl Pixels for RotatedView<'_> {
+    fn value(&self, px: usize) -> [f32; 3] {
+        let d = pixel_to_dir(px % self.width, px / self.width, self.width, self.height);
+        sample_dir(self.image, self.rotation * d)
+    }
 }
 
 /// A distant, compact light of one clipped region, per source: its light above
@@ -337,7 +372,7 @@ impl LightMeter {
         &self,
         region: &[usize],
         clipped: &[bool],
-        sources: &[&HdrImage],
+        sources: &[impl Pixels],
         tolerance_rad: f64,
     ) -> Option<RegionLight> {
         let n = sources.len();
@@ -348,8 +383,7 @@ impl LightMeter {
         for &px in region {
             let (x, y) = (px % w, px / w);
             for i in 0..n {
-                let img = sources[i].data();
-                let v = self.above([img[3 * px], img[3 * px + 1], img[3 * px + 2]], y);
+                let v = self.above(sources[i].value(px), y);
                 if v == 0.0 {
                     continue;
                 }
@@ -550,6 +584,16 @@ mod tests {
         (30..32).contains(&x) && (20..22).contains(&y)
     }
 
+    /// A probe already in the frame's orientation.
+    fn view(image: &HdrImage) -> RotatedView<'_> {
+        RotatedView {
+            image,
+            rotation: Mat3::IDENTITY,
+            width: W,
+            height: H,
+        }
+    }
+
     fn clipped_at_30() -> Vec<bool> {
         (0..W * H).map(|p| in_place(p % W, p / W)).collect()
     }
@@ -559,11 +603,21 @@ mod tests {
         // Both rotated probes hold the sun where the frame clipped; the first
         // probe's warp moved it 5 pixels right and 4 down (a homography fitted to
         // near features), the second's left it in place.
-        let rotated = [sky(in_place), sky(in_place)];
+        // The probes themselves hold the sun 10 columns further east, where the
+        // rotation into the frame takes it from.
+        let east = |x: usize, y: usize| (40..42).contains(&x) && (20..22).contains(&y);
+        let probes = [sky(east), sky(east)];
+        let yaw = Mat3::from_rotation_y(-10.0 / W as f32 * std::f32::consts::TAU);
+        let refs: Vec<RotatedView> = probes
+            .iter()
+            .map(|image| RotatedView {
+                rotation: yaw,
+                ..view(image)
+            })
+            .collect();
         let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
         let mut warped = vec![sky(moved), sky(in_place)];
         let before = warped[1].clone();
-        let refs: Vec<&HdrImage> = rotated.iter().collect();
         let n = restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut warped, &params(), 12);
         assert!(n[0] > 4, "nothing restored: {n:?}");
         assert_eq!(n[1], 0, "a warp with the sun in place was changed");
@@ -583,7 +637,7 @@ mod tests {
     fn a_sun_moved_beyond_the_reach_or_seen_with_parallax_is_left() {
         let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
         let refs_agree = [sky(in_place), sky(in_place)];
-        let refs: Vec<&HdrImage> = refs_agree.iter().collect();
+        let refs: Vec<RotatedView> = refs_agree.iter().map(view).collect();
         // Beyond the reach, the moved copy is not seen: the warp has no light near
         // the region, which still counts as worse, so the region is mended but the
         // far copy stays.
@@ -598,7 +652,7 @@ mod tests {
         // warp's placement stands.
         let lower = |x: usize, y: usize| (30..32).contains(&x) && (22..24).contains(&y);
         let parallax = [sky(in_place), sky(lower)];
-        let refs: Vec<&HdrImage> = parallax.iter().collect();
+        let refs: Vec<RotatedView> = parallax.iter().map(view).collect();
         let mut warped = vec![sky(moved), sky(moved)];
         let n = restore_distant_lights(&clipped_at_30(), W, H, &refs, &mut warped, &params(), 12);
         assert_eq!(n, vec![0, 0]);
@@ -608,7 +662,7 @@ mod tests {
     #[test]
     fn restoring_with_mismatched_sizes_or_one_probe_changes_nothing() {
         let rotated = [sky(in_place), sky(in_place)];
-        let refs: Vec<&HdrImage> = rotated.iter().collect();
+        let refs: Vec<RotatedView> = rotated.iter().map(view).collect();
         let moved = |x: usize, y: usize| (35..37).contains(&x) && (24..26).contains(&y);
         let mut one = vec![sky(moved)];
         let n = restore_distant_lights(&clipped_at_30(), W, H, &refs[..1], &mut one, &params(), 12);

@@ -6,7 +6,7 @@
 use super::dense::{
     confidence_with, pano_flow, texture_confidence, warp_backward, FlowField, FlowParams,
 };
-use super::distant::{hold_distant_lights, restore_distant_lights, DistantLights};
+use super::distant::{hold_distant_lights, restore_distant_lights, DistantLights, RotatedView};
 use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
@@ -793,11 +793,15 @@ pub fn restore_warped_lights(
     if !usable || warped.len() < 2 || !clipped.contains(&true) {
         return Ok(vec![0; warped.len()]);
     }
-    let rotated: Vec<HdrImage> = unwarped
+    let rotated: Vec<RotatedView> = unwarped
         .iter()
-        .map(|s| crate::sphere::rotate(s.image, s.rotation, w, h))
+        .map(|s| RotatedView {
+            image: s.image,
+            rotation: s.rotation,
+            width: w,
+            height: h,
+        })
         .collect();
-    let rotated: Vec<&HdrImage> = rotated.iter().collect();
     let px_per_deg = w as f32 / 360.0;
     let settings = DistantLights {
         clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
