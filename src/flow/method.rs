@@ -393,9 +393,6 @@ fn fuse(
         ("colour-term weight", p.dc_weight),
         ("clipped colour-term weight", p.clipped_dc_weight),
         ("clipped Potts cost", p.clipped_potts),
-        ("distant-light angle", p.distant_light_deg),
-        ("light ring", p.light_ring_deg),
-        ("light reach", p.light_reach_deg),
     ] {
         if v.is_nan() || v < 0.0 {
             return Err(Error::Invalid(format!(
@@ -403,6 +400,7 @@ fn fuse(
             )));
         }
     }
+    check_light_settings(p)?;
     let mut timings = FlowTimings::default();
     let t = Instant::now();
     let frame_disp: Vec<f32> = sdr.data().iter().map(|&c| c as f32 / 255.0).collect();
@@ -429,11 +427,7 @@ fn fuse(
             .collect()
     };
     let mut flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
-    let clipped_px: Vec<bool> = sdr
-        .data()
-        .chunks_exact(3)
-        .map(|c| c.iter().any(|&v| v >= p.clip_code))
-        .collect();
+    let clipped_px = clipped_pixels(sdr, p.clip_code);
     // Where the frame clipped, a light the probes see in the same direction keeps
     // the rotation's alignment. At a reduced working size a light smaller than a
     // working pixel clips none of them whole: any clipped sample counts.
@@ -441,13 +435,8 @@ fn fuse(
         .chunks_exact(3)
         .map(|c| c.contains(&true))
         .collect();
-    let distant_light_px = if p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0 {
+    let distant_light_px = if let Some(settings) = distant_settings(p, w, response, gain) {
         let images: Vec<&HdrImage> = sources.iter().map(|s| s.image).collect();
-        let settings = DistantLights {
-            clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
-            ring_px: (p.light_ring_deg.max(0.0) / 360.0 * w as f32).ceil() as usize,
-            tolerance_rad: (p.distant_light_deg as f64).to_radians(),
-        };
         hold_distant_lights(&light_clipped, w, h, &images, &mut flows, &settings)
     } else {
         vec![0; sources.len()]
@@ -743,6 +732,52 @@ fn with_images<'a>(sources: &[RotatedSource], images: &[&'a HdrImage]) -> Vec<So
         .collect()
 }
 
+/// Pixels of the frame with a channel at or above the clip code.
+fn clipped_pixels(sdr: &SdrImage, clip_code: u8) -> Vec<bool> {
+    sdr.data()
+        .chunks_exact(3)
+        .map(|c| c.iter().any(|&v| v >= clip_code))
+        .collect()
+}
+
+/// An angle in degrees of longitude as whole pixels of a `w`-wide panorama
+/// (rounded up).
+fn degrees_to_px(deg: f32, w: usize) -> usize {
+    (deg.max(0.0) / 360.0 * w as f32).ceil() as usize
+}
+
+/// The distant-light angles must be finite and >= 0: an infinite reach or ring
+/// would grow each light over the whole panorama.
+fn check_light_settings(p: &FlowMethodParams) -> Result<()> {
+    for (name, v) in [
+        ("distant-light angle", p.distant_light_deg),
+        ("light ring", p.light_ring_deg),
+        ("light reach", p.light_reach_deg),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(Error::Invalid(format!(
+                "flow method: {name} is {v}; it must be a finite number >= 0"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The distant-light rules' settings for a `w`-wide frame; `None` when they are
+/// off (`distant_light_deg` 0) or the frame's gain is unusable.
+fn distant_settings(
+    p: &FlowMethodParams,
+    w: usize,
+    response: &Response,
+    gain: f32,
+) -> Option<DistantLights> {
+    (p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0).then(|| DistantLights {
+        clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
+        ring_px: degrees_to_px(p.light_ring_deg, w),
+        tolerance_rad: (p.distant_light_deg as f64).to_radians(),
+    })
+}
+
 /// The hybrid's step between its two stages: where the frame clipped, a distant
 /// light that a warped probe (`warped`, at the frame's size) holds elsewhere than
 /// the same probe merely rotated into the frame (`unwarped`, same order) is put
@@ -773,24 +808,12 @@ pub fn restore_warped_lights(
             img.height()
         )));
     }
-    for (name, v) in [
-        ("distant-light angle", p.distant_light_deg),
-        ("light ring", p.light_ring_deg),
-        ("light reach", p.light_reach_deg),
-    ] {
-        if v.is_nan() || v < 0.0 {
-            return Err(Error::Invalid(format!(
-                "flow method: {name} is {v}; it must be a number >= 0"
-            )));
-        }
-    }
-    let clipped: Vec<bool> = sdr
-        .data()
-        .chunks_exact(3)
-        .map(|c| c.iter().any(|&v| v >= p.clip_code))
-        .collect();
-    let usable = p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0;
-    if !usable || warped.len() < 2 || !clipped.contains(&true) {
+    check_light_settings(p)?;
+    let clipped = clipped_pixels(sdr, p.clip_code);
+    let Some(settings) = distant_settings(p, w, response, gain) else {
+        return Ok(vec![0; warped.len()]);
+    };
+    if warped.len() < 2 || !clipped.contains(&true) {
         return Ok(vec![0; warped.len()]);
     }
     let rotated: Vec<RotatedView> = unwarped
@@ -802,13 +825,7 @@ pub fn restore_warped_lights(
             height: h,
         })
         .collect();
-    let px_per_deg = w as f32 / 360.0;
-    let settings = DistantLights {
-        clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
-        ring_px: (p.light_ring_deg * px_per_deg).ceil() as usize,
-        tolerance_rad: (p.distant_light_deg as f64).to_radians(),
-    };
-    let reach = (p.light_reach_deg * px_per_deg).ceil() as usize;
+    let reach = degrees_to_px(p.light_reach_deg, w);
     Ok(restore_distant_lights(
         &clipped, w, h, &rotated, warped, &settings, reach,
     ))
@@ -881,12 +898,18 @@ pub fn flow_frame_scaled(
         let c = &codes[3 * i..3 * i + 3];
         [0, 1, 2].map(|k| if c[k] >= p.clip_code { 1.0f32 } else { 0.0 })
     };
-    let small_clipped: Vec<bool> =
-        area_resample(ws, hs, w, h, k, |x, y| sample_px_by(w, h, x, y, clip_flag))
-            .data()
-            .iter()
-            .map(|&share| share > 0.0)
-            .collect();
+    let small_clipped: Vec<bool> = area_resample(ws, hs, w, h, k, |x, y| {
+        // Nearest pixel: a bilinear tap would lend a neighbour's flag.
+        let (xi, yi) = (
+            (x.max(0.0) as usize).min(w - 1),
+            (y.max(0.0) as usize).min(h - 1),
+        );
+        clip_flag(yi * w + xi)
+    })
+    .data()
+    .iter()
+    .map(|&share| share > 0.0)
+    .collect();
     let small_lin = area_resample(ws, hs, w, h, k, |x, y| sample_px(sdr_linear, x, y));
     // Each source is area-averaged in its own axes to about the working size, then
     // rotated into the frame's: sampling the full-size source k x k times per

@@ -661,7 +661,7 @@ pub fn predict_frame(
             // The hybrid's warp may move a light at infinity by the parallax of the
             // features its homographies fitted; the rotation alone puts it in place.
             let mut restored = Vec::new();
-            if params.method == Method::Hybrid && (w, h) == (sdr.width(), sdr.height()) {
+            if params.method == Method::Hybrid {
                 let unwarped: Vec<RotatedSource> = (0..used.len())
                     .map(|i| rotated_source(i, &*probes[i].image))
                     .collect();
