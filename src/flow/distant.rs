@@ -68,19 +68,12 @@ pub fn hold_distant_lights(
                 && f.data.len() == 2 * w * h
                 && b.data.len() == 2 * w * h
         });
-    if n_src < 2 || !sizes_agree || !clip.is_finite() || clip <= 0.0 {
+    if n_src < 2 || !sizes_agree {
         return held;
     }
-    if !clipped.iter().any(|&c| c) {
+    let Some((_, pixels)) = clipped_regions(clipped, w, h, p) else {
         return held;
-    }
-    let (lab, n) = components(&dilate(clipped, w, h, p.ring_px), w, h);
-    let mut pixels: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for (px, &l) in lab.iter().enumerate() {
-        if l != u32::MAX {
-            pixels[l as usize].push(px);
-        }
-    }
+    };
     let meter = LightMeter::new(w, h, clip);
     let above = |v: [f32; 3], row: usize| meter.above(v, row);
     // Per source: pixels whose flow was set to zero, and those of them holding the
@@ -205,19 +198,12 @@ pub fn restore_distant_lights(
     let sizes_agree = clipped.len() == w * h
         && rotated.iter().all(|s| (s.width, s.height) == (w, h))
         && warped.iter().all(|s| s.width() == w && s.height() == h);
-    if n_src < 2 || !sizes_agree || !clip.is_finite() || clip <= 0.0 {
+    if n_src < 2 || !sizes_agree {
         return restored;
     }
-    if !clipped.iter().any(|&c| c) {
+    let Some((lab, pixels)) = clipped_regions(clipped, w, h, p) else {
         return restored;
-    }
-    let (lab, n) = components(&dilate(clipped, w, h, p.ring_px), w, h);
-    let mut pixels: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for (px, &l) in lab.iter().enumerate() {
-        if l != u32::MAX {
-            pixels[l as usize].push(px);
-        }
-    }
+    };
     let meter = LightMeter::new(w, h, clip);
     let mut scratch = vec![false; w * h];
     // Pixels replaced per source (allocated once something is).
@@ -282,6 +268,29 @@ pub fn restore_distant_lights(
         }
     }
     restored
+}
+
+/// The frame's clipped regions, each grown by `p.ring_px`: a label per pixel
+/// (`u32::MAX` outside) and each region's pixels. `None` when nothing clipped or
+/// the clip level is unusable.
+fn clipped_regions(
+    clipped: &[bool],
+    w: usize,
+    h: usize,
+    p: &DistantLights,
+) -> Option<(Vec<u32>, Vec<Vec<usize>>)> {
+    let clip = p.clip_radiance;
+    if !clip.is_finite() || clip <= 0.0 || !clipped.contains(&true) {
+        return None;
+    }
+    let (lab, n) = components(&dilate(clipped, w, h, p.ring_px), w, h);
+    let mut pixels: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (px, &l) in lab.iter().enumerate() {
+        if l != u32::MAX {
+            pixels[l as usize].push(px);
+        }
+    }
+    Some((lab, pixels))
 }
 
 /// Per-pixel radiance of a `w x h` panorama, read one pixel at a time.
