@@ -116,13 +116,11 @@ pub fn hold_distant_lights(
                 continue;
             }
             let (fwd, bwd) = &mut flows[i];
-            let img = sources[i].data();
             for &px in region {
                 fwd.data[2 * px..2 * px + 2].fill(0.0);
                 bwd.data[2 * px..2 * px + 2].fill(0.0);
                 in_place[i][px] = true;
-                let v = [img[3 * px], img[3 * px + 1], img[3 * px + 2]];
-                light[i][px] = above(v, px / w) > 0.0;
+                light[i][px] = above(sources[i].value(px), px / w) > 0.0;
             }
             held[i] += region.len();
         }
@@ -180,9 +178,9 @@ pub fn hold_distant_lights(
 /// [`hold_distant_lights`]). Within `reach_px` steps of the region (other clipped
 /// regions left out), a warped source is mended when it has less of the light
 /// above the clip inside the clipped pixels than its rotation, or a larger share
-/// of it outside them. The
-/// region and the warped source's light within reach, with `ring_px` around them,
-/// then take the rotated source's values. Returns the pixels replaced, per source.
+/// of it outside them. The region and the warped source's light within reach,
+/// with `ring_px` around them, then take the rotated source's values. Returns the
+/// pixels replaced, per source.
 pub fn restore_distant_lights(
     clipped: &[bool],
     w: usize,
@@ -298,16 +296,15 @@ trait Pixels {
     fn value(&self, px: usize) -> [f32; 3];
 }
 
-impl Pixels for &HdrImage {
+impl Pixels for HdrImage {
     fn value(&self, px: usize) -> [f32; 3] {
-        let d = self.data();
-        [d[3 * px], d[3 * px + 1], d[3 * px + 2]]
+        self.get(px % self.width(), px / self.width())
     }
 }
 
-impl Pixels for HdrImage {
+impl<T: Pixels> Pixels for &T {
     fn value(&self, px: usize) -> [f32; 3] {
-        (&self).value(px)
+        (**self).value(px)
     }
 }
 
