@@ -27,6 +27,12 @@ pub struct Plot {
     pub y_label: String,
     /// Logarithmic x axis (base 10).
     pub log_x: bool,
+    /// Logarithmic y axis (base 10); points with y <= 0 are skipped.
+    pub log_y: bool,
+    /// Names of categories on the x axis: when not empty, x value `i` is
+    /// category `x_names[i]`, which labels the ticks instead of numbers (shortened
+    /// to fit).
+    pub x_names: Vec<String>,
     /// The series, drawn in order with distinct colours.
     pub series: Vec<Series>,
 }
@@ -185,13 +191,30 @@ impl Plot {
             px: vec![255; w * h * 3],
         };
         let fx = |x: f64| if self.log_x { x.max(1e-300).log10() } else { x };
-        let pts: Vec<(f64, f64)> = self
+        let fy = |y: f64| if self.log_y { y.max(1e-300).log10() } else { y };
+        let keep = |&(x, y): &(f64, f64)| {
+            x.is_finite() && y.is_finite() && (!self.log_x || x > 0.0) && (!self.log_y || y > 0.0)
+        };
+        let mut pts: Vec<(f64, f64)> = self
             .series
             .iter()
             .flat_map(|s| s.points.iter().copied())
-            .filter(|(x, y)| x.is_finite() && y.is_finite() && (!self.log_x || *x > 0.0))
-            .map(|(x, y)| (fx(x), y))
+            .filter(keep)
+            .map(|(x, y)| (fx(x), fy(y)))
             .collect();
+        if !self.x_names.is_empty() {
+            // Every category gets its place, with or without points.
+            let (lo, hi) = pts
+                .iter()
+                .map(|p| p.1)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
+                    (a.min(y), b.max(y))
+                });
+            if lo.is_finite() {
+                pts.push((0.0, lo));
+                pts.push(((self.x_names.len() - 1) as f64, hi));
+            }
+        }
         let (mut x0, mut x1, mut y0, mut y1) = (0.0, 1.0, 0.0, 1.0);
         if !pts.is_empty() {
             x0 = pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
@@ -214,20 +237,53 @@ impl Plot {
         let py = |y: f64| b - ((y - y0) / (y1 - y0) * (b - t) as f64).round() as i64;
         let grey = [200, 200, 200];
         let black = [0, 0, 0];
-        for tx in ticks(x0, x1) {
-            let x = px(tx);
-            cv.line(x, t, x, b, grey);
-            let s = if self.log_x {
-                tick_label(10f64.powf(tx))
+        if self.x_names.is_empty() {
+            for tx in ticks(x0, x1) {
+                let x = px(tx);
+                cv.line(x, t, x, b, grey);
+                let s = if self.log_x {
+                    tick_label(10f64.powf(tx))
+                } else {
+                    tick_label(tx)
+                };
+                cv.text(x - 3 * s.len() as i64, b + 6, &s, black);
+            }
+        } else {
+            // Category names, each shortened to the room between two ticks.
+            let n = self.x_names.len();
+            let room = if n > 1 {
+                ((px(1.0) - px(0.0)) / 6 - 1).max(1) as usize
             } else {
-                tick_label(tx)
+                ((r - l) / 6) as usize
             };
-            cv.text(x - 3 * s.len() as i64, b + 6, &s, black);
+            for (i, name) in self.x_names.iter().enumerate() {
+                let x = px(i as f64);
+                cv.line(x, t, x, b, grey);
+                let s: String = name.chars().take(room).collect();
+                cv.text(x - 3 * s.chars().count() as i64, b + 6, &s, black);
+            }
         }
-        for ty in ticks(y0, y1) {
+        let y_ticks = if self.log_y {
+            // Powers of ten when the range spans them, else the plain ticks.
+            let decades: Vec<f64> = (y0.ceil() as i64..=y1.floor() as i64)
+                .map(|e| e as f64)
+                .collect();
+            if decades.len() >= 2 {
+                decades
+            } else {
+                ticks(y0, y1)
+            }
+        } else {
+            ticks(y0, y1)
+        };
+        for ty in y_ticks {
             let y = py(ty);
             cv.line(l, y, r, y, grey);
-            let s = tick_label(ty);
+            let s = if self.log_y {
+                tick_label(10f64.powf(ty))
+            } else {
+                tick_label(ty)
+            };
             cv.text(l - 6 - 6 * s.len() as i64, y - 3, &s, black);
         }
         cv.line(l, b, r, b, black);
@@ -239,20 +295,20 @@ impl Plot {
             self.x_label.clone()
         };
         cv.text((l + r) / 2 - 3 * xl.len() as i64, h as i64 - 16, &xl, black);
-        cv.text_up(
-            8,
-            (t + b) / 2 + 3 * self.y_label.len() as i64,
-            &self.y_label,
-            black,
-        );
+        let yl = if self.log_y {
+            format!("{} (log)", self.y_label)
+        } else {
+            self.y_label.clone()
+        };
+        cv.text_up(8, (t + b) / 2 + 3 * yl.len() as i64, &yl, black);
         for (k, s) in self.series.iter().enumerate() {
             let c = PALETTE[k % PALETTE.len()];
             let mut p: Vec<(f64, f64)> = s
                 .points
                 .iter()
                 .copied()
-                .filter(|(x, y)| x.is_finite() && y.is_finite() && (!self.log_x || *x > 0.0))
-                .map(|(x, y)| (fx(x), y))
+                .filter(keep)
+                .map(|(x, y)| (fx(x), fy(y)))
                 .collect();
             if s.line {
                 p.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -305,6 +361,8 @@ mod tests {
             x_label: "distance (m)".into(),
             y_label: "PSNR".into(),
             log_x: false,
+            log_y: false,
+            x_names: Vec::new(),
             series: vec![Series {
                 name: "flow".into(),
                 points: vec![(0.3, 20.0), (1.5, 30.0), (f64::NAN, 1.0)],
@@ -324,5 +382,40 @@ mod tests {
         };
         let e = empty.draw(10, 10);
         assert_eq!((e.width(), e.height()), (200, 150));
+    }
+
+    #[test]
+    fn log_y_and_named_categories_draw_their_points() {
+        let p = Plot {
+            title: "worst".into(),
+            x_label: "scene".into(),
+            y_label: "error".into(),
+            log_x: false,
+            log_y: true,
+            x_names: vec!["kitchen".into(), "flat".into(), "outdoor".into()],
+            series: vec![Series {
+                name: "warp".into(),
+                // A non-positive y cannot be drawn on a log axis and is skipped.
+                points: vec![(0.0, 0.01), (1.0, 0.5), (2.0, 0.0)],
+                line: false,
+            }],
+        };
+        let img = p.draw(400, 300);
+        let blue = |img: &SdrImage| {
+            img.data()
+                .chunks_exact(3)
+                .filter(|c| c == &PALETTE[0])
+                .count()
+        };
+        let n = blue(&img);
+        let one = Plot {
+            series: vec![Series {
+                points: vec![(0.0, 0.01)],
+                ..p.series[0].clone()
+            }],
+            ..p.clone()
+        };
+        // Two dots of 21 pixels and the legend's 25 against one dot and the legend.
+        assert!(n > blue(&one.draw(400, 300)) + 15, "{n}");
     }
 }

@@ -408,6 +408,8 @@ pub fn plot(rows: &[SweepRow], scene: &str) -> Plot {
         x_label: "CPU time per frame (ms, 1 thread)".into(),
         y_label: "log-luminance RMSE".into(),
         log_x: true,
+        log_y: false,
+        x_names: Vec::new(),
         series,
     }
 }
