@@ -41,6 +41,7 @@
 
 pub mod plot;
 pub mod ssim;
+pub mod summary;
 pub mod table;
 
 pub use ssim::ssim;
@@ -146,9 +147,7 @@ pub fn compare(pred: &HdrImage, gt: &HdrImage) -> Result<Metrics> {
             gt.height()
         )));
     }
-    let (p, invalid) = sanitized(pred);
-    let (g, _) = sanitized(gt);
-    Ok(compare_clean(&p, &g, invalid))
+    Ok(compare_to_truth(pred, &Truth::new(gt)?)?.metrics)
 }
 
 /// Like [`compare`], but a prediction of another size is first repaired (its
@@ -157,14 +156,93 @@ pub fn compare(pred: &HdrImage, gt: &HdrImage) -> Result<Metrics> {
 pub fn compare_resized(pred: &HdrImage, gt: &HdrImage) -> Result<Metrics> {
     check_nonempty(gt, "ground truth")?;
     check_nonempty(pred, "prediction")?;
+    Ok(compare_to_truth(pred, &Truth::new(gt)?)?.metrics)
+}
+
+/// A ground-truth probe made ready for scoring, so that several predictions of
+/// the same frame share its tone map, its SH projection, its irradiance at the
+/// [`IRRADIANCE_NORMALS`] normals and its median luminance (each computed once).
+pub struct Truth {
+    /// The truth with invalid samples repaired.
+    img: HdrImage,
+    /// Its log-average luminance, the key of both tone maps.
+    log_avg: f32,
+    /// Its tone-mapped RGB.
+    tm: Vec<f32>,
+    /// Luma of `tm`, for SSIM.
+    luma: Vec<f32>,
+    /// Luminance SH coefficients.
+    lum_sh: [f64; 9],
+    /// Diffuse irradiance luminance at the Fibonacci normals.
+    irradiance: Vec<f64>,
+    /// The `eps` of `log_lum_rmse`.
+    log_eps: f64,
+}
+
+impl Truth {
+    /// Prepares `gt` (repaired silently); fails when it is empty.
+    pub fn new(gt: &HdrImage) -> Result<Truth> {
+        check_nonempty(gt, "ground truth")?;
+        let (g, _) = sanitized(gt);
+        let img = g.into_owned();
+        let log_avg = crate::tonemap::log_average_luminance(&img);
+        let ((tm, sh), log_eps) = rayon::join(
+            || {
+                rayon::join(
+                    || crate::tonemap::reinhard_global(&img, TM_KEY, None, Some(log_avg)),
+                    || project_f64(&img),
+                )
+            },
+            || log_epsilon(&img),
+        );
+        let luma: Vec<f32> = tm.chunks_exact(3).map(luma_of).collect();
+        let lum_sh = luminance_f64(&sh);
+        Ok(Truth {
+            irradiance: irradiance_at_normals(&lum_sh),
+            img,
+            log_avg,
+            tm,
+            luma,
+            lum_sh,
+            log_eps,
+        })
+    }
+
+    /// Width and height of the truth.
+    pub fn size(&self) -> (usize, usize) {
+        (self.img.width(), self.img.height())
+    }
+
+    /// Diffuse irradiance luminance `Eg` at the [`IRRADIANCE_NORMALS`] Fibonacci
+    /// normals (in the order of [`crate::ibl::fibonacci_directions`]).
+    pub fn irradiance(&self) -> &[f64] {
+        &self.irradiance
+    }
+}
+
+/// The scores of one prediction and its diffuse irradiance luminance `Ep` at the
+/// same normals as [`Truth::irradiance`], for temporal figures over frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Comparison {
+    /// The scores.
+    pub metrics: Metrics,
+    /// `Ep` at the [`IRRADIANCE_NORMALS`] normals.
+    pub irradiance: Vec<f64>,
+}
+
+/// Scores `pred` against a prepared truth. A prediction of another size is
+/// repaired first (invalid pixels counted at its own resolution) and resampled to
+/// the truth's size, as in [`compare_resized`]. Fails when `pred` is empty.
+pub fn compare_to_truth(pred: &HdrImage, truth: &Truth) -> Result<Comparison> {
+    check_nonempty(pred, "prediction")?;
     let (p, invalid) = sanitized(pred);
-    let (g, _) = sanitized(gt);
-    let p = if p.width() != g.width() || p.height() != g.height() {
-        Cow::Owned(crate::sphere::resize(&p, g.width(), g.height()))
+    let (w, h) = truth.size();
+    let p = if p.width() != w || p.height() != h {
+        Cow::Owned(crate::sphere::resize(&p, w, h))
     } else {
         p
     };
-    Ok(compare_clean(&p, &g, invalid))
+    Ok(compare_clean(&p, truth, invalid))
 }
 
 fn check_nonempty(img: &HdrImage, what: &str) -> Result<()> {
@@ -204,42 +282,38 @@ fn lum64(p: &[f32]) -> f64 {
     0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64
 }
 
-/// All metrics for same-sized, non-empty, repaired images.
-fn compare_clean(pred: &HdrImage, gt: &HdrImage, invalid_pixels: u64) -> Metrics {
-    let (w, h) = (gt.width(), gt.height());
-    let ((tm_p, tm_g), (sh, log_lum_rmse)) = rayon::join(
+/// Luma of a tone-mapped pixel, the plane SSIM compares.
+#[inline]
+fn luma_of(a: &[f32]) -> f32 {
+    0.299 * a[0] + 0.587 * a[1] + 0.114 * a[2]
+}
+
+/// All metrics for a non-empty, repaired prediction of the truth's size.
+fn compare_clean(pred: &HdrImage, truth: &Truth, invalid_pixels: u64) -> Comparison {
+    let (w, h) = truth.size();
+    let (tm_p, (sh_p, log_lum_rmse)) = rayon::join(
+        || crate::tonemap::reinhard_global(pred, TM_KEY, None, Some(truth.log_avg)),
         || {
-            let la = crate::tonemap::log_average_luminance(gt);
             rayon::join(
-                || crate::tonemap::reinhard_global(pred, TM_KEY, None, Some(la)),
-                || crate::tonemap::reinhard_global(gt, TM_KEY, None, Some(la)),
-            )
-        },
-        || {
-            rayon::join(
-                || rayon::join(|| project_f64(pred), || project_f64(gt)),
-                || log_lum_rmse(pred, gt),
+                || project_f64(pred),
+                || log_lum_rmse(pred, &truth.img, truth.log_eps),
             )
         },
     );
-    let (sh_p, sh_g) = sh;
 
-    // MSE over the tone-mapped RGB and the luma planes for SSIM.
+    // MSE over the tone-mapped RGB and the luma plane for SSIM.
     let mut luma_p = vec![0.0f32; w * h];
-    let mut luma_g = vec![0.0f32; w * h];
     let sse: f64 = luma_p
         .par_chunks_mut(w)
-        .zip(luma_g.par_chunks_mut(w))
-        .zip(tm_p.par_chunks(3 * w).zip(tm_g.par_chunks(3 * w)))
-        .map(|((lp, lg), (tp, tg))| {
+        .zip(tm_p.par_chunks(3 * w).zip(truth.tm.par_chunks(3 * w)))
+        .map(|(lp, (tp, tg))| {
             let mut s = 0.0f64;
             for (i, (a, b)) in tp.chunks_exact(3).zip(tg.chunks_exact(3)).enumerate() {
                 for c in 0..3 {
                     let d = (a[c] - b[c]) as f64;
                     s += d * d;
                 }
-                lp[i] = 0.299 * a[0] + 0.587 * a[1] + 0.114 * a[2];
-                lg[i] = 0.299 * b[0] + 0.587 * b[1] + 0.114 * b[2];
+                lp[i] = luma_of(a);
             }
             s
         })
@@ -252,24 +326,27 @@ fn compare_clean(pred: &HdrImage, gt: &HdrImage, invalid_pixels: u64) -> Metrics
     } else {
         PSNR_CAP_DB
     };
-    let ssim_tm = ssim(&luma_p, &luma_g, w, h);
+    let ssim_tm = ssim(&luma_p, &truth.luma, w, h);
 
     let lp = luminance_f64(&sh_p);
-    let lg = luminance_f64(&sh_g);
-    Metrics {
-        psnr_tm,
-        ssim_tm,
-        mse_tm,
-        log_lum_rmse,
-        irradiance_rel_err: irradiance_rel_err(&lp, &lg),
-        dominant_dir_err_deg: dominant_dir_err_deg(&lp, &lg),
-        invalid_pixels,
+    let ep = irradiance_at_normals(&lp);
+    Comparison {
+        metrics: Metrics {
+            psnr_tm,
+            ssim_tm,
+            mse_tm,
+            log_lum_rmse,
+            irradiance_rel_err: irradiance_rel_err(&ep, &truth.irradiance),
+            dominant_dir_err_deg: dominant_dir_err_deg(&lp, &truth.lum_sh),
+            invalid_pixels,
+        },
+        irradiance: ep,
     }
 }
 
-/// Solid-angle-weighted RMSE of log10 luminance (see the module docs).
-fn log_lum_rmse(pred: &HdrImage, gt: &HdrImage) -> f64 {
-    let (w, h) = (gt.width(), gt.height());
+/// The `eps` of `log_lum_rmse`: `1e-3` of the truth's median luminance (`1e-6`
+/// when that median is 0 or not finite).
+fn log_epsilon(gt: &HdrImage) -> f64 {
     let mut lums: Vec<f64> = gt.data().chunks_exact(3).map(lum64).collect();
     let n = lums.len();
     let mid = n / 2;
@@ -279,11 +356,17 @@ fn log_lum_rmse(pred: &HdrImage, gt: &HdrImage) -> f64 {
         let below = lower.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         median = 0.5 * (median + below);
     }
-    let eps = if median > 0.0 && median.is_finite() {
+    if median > 0.0 && median.is_finite() {
         1e-3 * median
     } else {
         1e-6
-    };
+    }
+}
+
+/// Solid-angle-weighted RMSE of log10 luminance (see the module docs), with the
+/// truth's `eps` from [`log_epsilon`].
+fn log_lum_rmse(pred: &HdrImage, gt: &HdrImage, eps: f64) -> f64 {
+    let (w, h) = (gt.width(), gt.height());
     let rows: Vec<(f64, f64)> = pred
         .data()
         .par_chunks(3 * w)
@@ -310,15 +393,32 @@ fn log_lum_rmse(pred: &HdrImage, gt: &HdrImage) -> f64 {
     }
 }
 
-/// Relative L2 error of SH irradiance luminance over the Fibonacci normals.
-fn irradiance_rel_err(lp: &[f64; 9], lg: &[f64; 9]) -> f64 {
+/// The [`IRRADIANCE_NORMALS`] Fibonacci normals in `f64`, made once.
+fn irradiance_normals() -> &'static [[f64; 3]] {
+    static NORMALS: std::sync::OnceLock<Vec<[f64; 3]>> = std::sync::OnceLock::new();
+    NORMALS.get_or_init(|| {
+        crate::ibl::fibonacci_directions(IRRADIANCE_NORMALS)
+            .into_iter()
+            .map(|n| [n.x as f64, n.y as f64, n.z as f64])
+            .collect()
+    })
+}
+
+/// Diffuse irradiance luminance of SH luminance coefficients at each of the
+/// [`IRRADIANCE_NORMALS`] Fibonacci normals.
+fn irradiance_at_normals(l: &[f64; 9]) -> Vec<f64> {
+    irradiance_normals()
+        .iter()
+        .map(|&n| irradiance_scalar_f64(l, n))
+        .collect()
+}
+
+/// Relative L2 error of irradiance luminance over the Fibonacci normals.
+fn irradiance_rel_err(ep: &[f64], eg: &[f64]) -> f64 {
     let mut diff2 = 0.0f64;
     let mut gt2 = 0.0f64;
     let mut pred2 = 0.0f64;
-    for n in crate::ibl::fibonacci_directions(IRRADIANCE_NORMALS) {
-        let n = [n.x as f64, n.y as f64, n.z as f64];
-        let ep = irradiance_scalar_f64(lp, n);
-        let eg = irradiance_scalar_f64(lg, n);
+    for (&ep, &eg) in ep.iter().zip(eg) {
         diff2 += (ep - eg) * (ep - eg);
         gt2 += eg * eg;
         pred2 += ep * ep;
@@ -573,7 +673,7 @@ mod timing {
         let sh = t4.elapsed().as_secs_f64() * 1e3 / n as f64;
         let t5 = std::time::Instant::now();
         for _ in 0..n {
-            std::hint::black_box(log_lum_rmse(&pred, &gt));
+            std::hint::black_box(log_lum_rmse(&pred, &gt, log_epsilon(&gt)));
         }
         let ll = t5.elapsed().as_secs_f64() * 1e3 / n as f64;
         println!("compare {per:.2} ms; tonemap {tm:.2}; ssim {ss:.2}; sh {sh:.2}; loglum {ll:.2}");

@@ -5,7 +5,8 @@
 
 use super::{existing_prediction, linearize, load_frame, load_probe, prediction_path};
 use crate::error::{Error, Result};
-use crate::eval::{compare_resized, Metrics, MetricsTable};
+use crate::eval::summary::{summarize, FrameSample};
+use crate::eval::{compare_to_truth, Metrics, MetricsTable, Truth};
 use crate::image::{io, HdrImage};
 use crate::scene::Scene;
 use crate::sphere::rotate;
@@ -115,65 +116,90 @@ pub fn nearest_probe_baseline(
 
 /// Scores each `(label, prediction folder)` and both baselines on every frame that
 /// has ground truth. Predictions of another size are resampled to the truth's.
+/// Every row of the table carries the worst-case statistics of
+/// [`crate::eval::summary`] (p95, worst frame, frames over the SDR baseline's
+/// irradiance error, flicker between consecutive scored frames in walk order).
 pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
     evaluate_scaled(scene, preds, &vec![1.0; preds.len()])
 }
 
 fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) -> Result<SceneEval> {
     use rayon::prelude::*;
-    let per_frame: Vec<Result<Option<FrameScores>>> = (0..scene.frames.len())
+    // Per scored frame: its scores, and the irradiance at the metrics' normals of
+    // the truth and of each row's image (for flicker), computed with the scores.
+    type Scored = (FrameScores, Vec<f64>, Vec<Vec<f64>>);
+    let per_frame: Vec<Result<Option<Scored>>> = (0..scene.frames.len())
         .into_par_iter()
         .map(|i| {
             let frame = &scene.frames[i];
             let Some(gt_path) = &frame.ground_truth else {
                 return Ok(None);
             };
-            let gt = io::read_hdr(gt_path)?;
+            let truth = Truth::new(&io::read_hdr(gt_path)?)?;
+            let (w, h) = truth.size();
             let mut scores = Vec::new();
+            let mut irradiance = Vec::new();
+            let mut score = |label: &str, img: &HdrImage| -> Result<()> {
+                let c = compare_to_truth(img, &truth)?;
+                scores.push((label.to_string(), c.metrics));
+                irradiance.push(c.irradiance);
+                Ok(())
+            };
             for ((label, dir), &f) in preds.iter().zip(factors) {
                 let p = existing_prediction(dir, frame)?;
                 let mut pred = io::read_hdr(&p)?;
                 if f != 1.0 {
                     pred.data_mut().iter_mut().for_each(|v| *v *= f as f32);
                 }
-                scores.push((label.clone(), compare_resized(&pred, &gt)?));
+                score(label, &pred)?;
             }
-            let base = nearest_probe_baseline(scene, i, gt.width(), gt.height())?;
-            scores.push((BASELINE_PROBE.to_string(), compare_resized(&base, &gt)?));
-            let sdr = linearize(&load_frame(frame, None)?, scene);
-            scores.push((BASELINE_SDR.to_string(), compare_resized(&sdr, &gt)?));
+            score(BASELINE_PROBE, &nearest_probe_baseline(scene, i, w, h)?)?;
+            score(BASELINE_SDR, &linearize(&load_frame(frame, None)?, scene))?;
             let pi = scene.nearest_probe(frame.pose.position);
-            Ok(Some(FrameScores {
+            let scores = FrameScores {
                 id: frame.id.clone(),
                 probe_distance_m: crate::scene::distance_m(
                     scene.probes[pi].pose.position,
                     frame.pose.position,
                 ),
                 scores,
-            }))
+            };
+            Ok(Some((scores, truth.irradiance().to_vec(), irradiance)))
         })
         .collect();
-    let mut frames = Vec::new();
+    let mut scored = Vec::new();
     for r in per_frame {
         if let Some(f) = r? {
-            frames.push(f);
+            scored.push(f);
         }
     }
-    if frames.is_empty() {
+    if scored.is_empty() {
         return Err(Error::Invalid(format!(
             "scene {} has no frame with ground truth to score",
             scene.name
         )));
     }
+    let labels: Vec<String> = scored[0].0.scores.iter().map(|s| s.0.clone()).collect();
+    let sdr = labels.iter().position(|l| l == BASELINE_SDR);
     let mut table = MetricsTable::new();
-    for (k, (label, _)) in frames[0].scores.iter().enumerate() {
-        let col: Vec<Metrics> = frames.iter().map(|f| f.scores[k].1).collect();
-        table.push(label.clone(), &col);
+    for (k, label) in labels.iter().enumerate() {
+        let col: Vec<Metrics> = scored.iter().map(|f| f.0.scores[k].1).collect();
+        let samples: Vec<FrameSample> = scored
+            .iter()
+            .map(|(f, eg, ep)| FrameSample {
+                id: &f.id,
+                metrics: &f.scores[k].1,
+                irradiance: &ep[k],
+                truth_irradiance: eg,
+                sdr_irradiance_err: sdr.map(|s| f.scores[s].1.irradiance_rel_err),
+            })
+            .collect();
+        table.push_with_tail(label.clone(), &col, summarize(&samples));
     }
     Ok(SceneEval {
         scene: scene.name.clone(),
         table,
-        frames,
+        frames: scored.into_iter().map(|f| f.0).collect(),
         scales: Vec::new(),
     })
 }
@@ -299,6 +325,8 @@ pub fn distance_plot(
         x_label: "distance to nearest probe (m)".into(),
         y_label: "PSNR tone-mapped (dB)".into(),
         log_x: false,
+        log_y: false,
+        x_names: Vec::new(),
         series,
     }
 }
