@@ -1,29 +1,16 @@
 //! The warp method on the evaluation data (`../shared/data`, or the folder named by
 //! `LUMIPROBE_DATA`): a few frames of each scene, scored against ground truth.
-//! When the data is not there the test says so and checks nothing.
+//! When the data is not there the test fails.
 
+#[path = "common/data.rs"]
+mod data;
 use lumiprobe::pipeline::evaluate::{evaluate, BASELINE_PROBE, BASELINE_SDR};
 use lumiprobe::pipeline::{run, RunParams};
 use lumiprobe::scene::Scene;
-use std::path::PathBuf;
-
-fn data_dir() -> Option<PathBuf> {
-    let candidates = [
-        std::env::var_os("LUMIPROBE_DATA").map(PathBuf::from),
-        Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data")),
-    ];
-    candidates
-        .into_iter()
-        .flatten()
-        .find(|p| p.join("scenes").is_dir())
-}
 
 #[test]
 fn warp_beats_the_nearest_probe_on_the_evaluation_scenes() {
-    let Some(data) = data_dir() else {
-        eprintln!("evaluation data not found (set LUMIPROBE_DATA); nothing checked");
-        return;
-    };
+    let data = data::shared_data();
     for name in ["kitchen", "flat", "outdoor"] {
         let mut scene = Scene::load(&data.join("scenes").join(name)).unwrap();
         // Every fourth frame keeps the test short.

@@ -686,15 +686,15 @@ fn wide_noisy_bracket_recovers_the_top_and_the_floor() {
     assert!(e < 0.02, "{e}");
 }
 
-/// A dataset bracket, or `None` with a note when the data is absent.
+/// A dataset bracket; its absence fails the test.
 fn dataset_file(rel: &str) -> Option<PathBuf> {
     let p = Path::new(DATA).join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        println!("note: {} absent; skipping", p.display());
-        None
-    }
+    assert!(
+        p.exists(),
+        "{} is missing: the shared evaluation data (../shared/data) must be beside the repository",
+        p.display()
+    );
+    Some(p)
 }
 
 #[test]

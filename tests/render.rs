@@ -322,14 +322,15 @@ fn environment_and_image_backgrounds() {
     assert!(out.color.get(0, 0)[0] < 0.1 && out.color.get(39, 0)[0] > 2.9);
 }
 
+/// A model of the shared data; its absence fails the test.
 fn model_path(name: &str) -> Option<PathBuf> {
     let p = Path::new(MODELS).join(name);
-    if p.exists() {
-        Some(p)
-    } else {
-        println!("skipping: {} not found", p.display());
-        None
-    }
+    assert!(
+        p.exists(),
+        "{} is missing: the shared evaluation data (../shared/data) must be beside the repository",
+        p.display()
+    );
+    Some(p)
 }
 
 #[test]

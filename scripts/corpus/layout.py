@@ -18,7 +18,7 @@ scene.py scales the sky to that, lamps and the sun are given in those units.
 import math
 import random
 
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"
 
 # The captured HDR worlds Blender ships (datafiles/studiolights/world).
 DAY_WORLDS = ["city", "courtyard", "forest", "sunrise", "sunset"]

@@ -177,16 +177,12 @@ def build(spec):
         bmesh.ops.translate(bm, verts=bm.verts, vec=s["center"])
         link(f"sphere{k}", bm, mats[s["mat"]], smooth=True)
     for k, e in enumerate(spec["emitters"]):
-        bm = bmesh.new()
         if e["shape"] == "sphere":
-            bmesh.ops.create_uvsphere(bm, u_segments=24, v_segments=12, radius=e["radius"])
-            bmesh.ops.translate(bm, verts=bm.verts, vec=e["center"])
-        else:
-            add_box(bm, e["min"], e["max"])
-        obj = link(f"emitter{k}", bm, emission_material(f"emit{k}", e["colour"], e["radiance"]),
-                   smooth=e["shape"] == "sphere")
-        # Small spheres are seen by the camera analytically (footprints()).
-        obj.visible_camera = e["shape"] != "sphere"
+            sphere_light(f"lamp{k}", e)
+            continue
+        bm = bmesh.new()
+        add_box(bm, e["min"], e["max"])
+        link(f"emitter{k}", bm, emission_material(f"emit{k}", e["colour"], e["radiance"]))
     for k, p in enumerate(spec.get("portals", [])):
         light = bpy.data.lights.new(f"portal{k}", "AREA")
         light.shape = "RECTANGLE"
@@ -196,22 +192,42 @@ def build(spec):
         obj.location = p["center"]
         obj.rotation_euler = tuple(math.radians(v) for v in p["rotation_deg"])
         bpy.context.scene.collection.objects.link(obj)
-    sun = spec.get("sun")
-    if sun:
-        # The sun as a far emissive disc: a light at infinity with a true
-        # angular size, sampled as a mesh light (a tiny disc in the world map
-        # would be found by chance only).
-        dist = 2.0e4
-        r = dist * math.tan(math.radians(sun["diameter_deg"] / 2))
-        bm = bmesh.new()
-        bmesh.ops.create_circle(bm, cap_ends=True, radius=r, segments=24)
-        obj = link("sun", bm, emission_material("sun", sun["colour"], sun["radiance"]))
-        obj.visible_camera = False  # seen analytically (footprints())
-        d = sun["direction"]
-        obj.location = (d[0] * dist, d[1] * dist, d[2] * dist)
-        obj.rotation_mode = "QUATERNION"
-        from mathutils import Vector
-        obj.rotation_quaternion = Vector((-d[0], -d[1], -d[2])).to_track_quat("Z", "Y")
+    if spec.get("sun"):
+        sun_light(spec["sun"])
+
+
+# Small lamps and the sun are Cycles lights rather than emissive meshes: Cycles
+# (3.4) samples mesh lights by area, so a far sun disc would starve every lamp,
+# and its mesh-light set is ordered differently from run to run (the same seed
+# gave other noise). Lights are sampled by solid angle and are not seen by camera
+# rays; the camera sees them analytically (footprints()).
+def sphere_light(name, e):
+    """A sphere lamp of the layout's radiance L: Cycles gives a point light of
+    power P and radius r the radiance P / (4 pi^2 r^2)."""
+    peak = max(e["colour"])
+    light = bpy.data.lights.new(name, "POINT")
+    light.shadow_soft_size = e["radius"]
+    light.color = tuple(c / peak for c in e["colour"])
+    light.energy = e["radiance"] * peak * 4.0 * math.pi ** 2 * e["radius"] ** 2
+    light.cycles.use_multiple_importance_sampling = True
+    obj = bpy.data.objects.new(name, light)
+    obj.location = e["center"]
+    bpy.context.scene.collection.objects.link(obj)
+
+
+def sun_light(sun):
+    """The sun of the layout's radiance L and angular diameter a: Cycles gives a
+    sun of strength S the radiance S / (pi tan^2(a / 2))."""
+    from mathutils import Vector
+    peak = max(sun["colour"])
+    light = bpy.data.lights.new("sun", "SUN")
+    light.angle = math.radians(sun["diameter_deg"])
+    light.color = tuple(c / peak for c in sun["colour"])
+    light.energy = sun["radiance"] * peak * math.pi * math.tan(light.angle / 2) ** 2
+    obj = bpy.data.objects.new("sun", light)
+    obj.rotation_mode = "QUATERNION"
+    obj.rotation_quaternion = Vector(sun["direction"]).to_track_quat("Z", "Y")
+    bpy.context.scene.collection.objects.link(obj)
 
 
 def world(spec):
