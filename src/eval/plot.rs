@@ -31,7 +31,8 @@ pub struct Plot {
     pub log_y: bool,
     /// Names of categories on the x axis: when not empty, x value `i` is
     /// category `x_names[i]`, which labels the ticks instead of numbers (shortened
-    /// to fit).
+    /// to fit); x runs from -0.5 to `len - 0.5` (offsets within a category place
+    /// series side by side), left of the legend.
     pub x_names: Vec<String>,
     /// The series, drawn in order with distinct colours.
     pub series: Vec<Series>,
@@ -195,26 +196,13 @@ impl Plot {
         let keep = |&(x, y): &(f64, f64)| {
             x.is_finite() && y.is_finite() && (!self.log_x || x > 0.0) && (!self.log_y || y > 0.0)
         };
-        let mut pts: Vec<(f64, f64)> = self
+        let pts: Vec<(f64, f64)> = self
             .series
             .iter()
             .flat_map(|s| s.points.iter().copied())
             .filter(keep)
             .map(|(x, y)| (fx(x), fy(y)))
             .collect();
-        if !self.x_names.is_empty() {
-            // Every category gets its place, with or without points.
-            let (lo, hi) = pts
-                .iter()
-                .map(|p| p.1)
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), y| {
-                    (a.min(y), b.max(y))
-                });
-            if lo.is_finite() {
-                pts.push((0.0, lo));
-                pts.push(((self.x_names.len() - 1) as f64, hi));
-            }
-        }
         let (mut x0, mut x1, mut y0, mut y1) = (0.0, 1.0, 0.0, 1.0);
         if !pts.is_empty() {
             x0 = pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
@@ -230,10 +218,27 @@ impl Plot {
             };
             (a - d, b + d)
         };
-        let (x0, x1) = pad(x0, x1);
+        let (x0, x1) = if self.x_names.is_empty() {
+            pad(x0, x1)
+        } else {
+            // Every category gets its place, with or without points.
+            (-0.5, self.x_names.len() as f64 - 0.5)
+        };
         let (y0, y1) = pad(y0, y1);
         let (l, r, t, b) = (70i64, w as i64 - 20, 30i64, h as i64 - 45);
-        let px = |x: f64| l + ((x - x0) / (x1 - x0) * (r - l) as f64).round() as i64;
+        // Categories end left of the legend, so no point hides under it.
+        let legend_w = self
+            .series
+            .iter()
+            .map(|s| 6 * s.name.chars().count() as i64 + 24)
+            .max()
+            .unwrap_or(0);
+        let r_data = if self.x_names.is_empty() {
+            r
+        } else {
+            (r - legend_w).max(l + (r - l) / 2)
+        };
+        let px = |x: f64| l + ((x - x0) / (x1 - x0) * (r_data - l) as f64).round() as i64;
         let py = |y: f64| b - ((y - y0) / (y1 - y0) * (b - t) as f64).round() as i64;
         let grey = [200, 200, 200];
         let black = [0, 0, 0];
