@@ -290,6 +290,31 @@ enum Cmd {
         #[command(flatten)]
         flow: FlowOpts,
     },
+    /// Run methods on every scene of one or more corpora and score them with the
+    /// worst case: one row per scene and method, totals per split, a plot.
+    Corpus {
+        /// Corpus folders (holding corpus.json) or folders of scene folders (each
+        /// holding a poses.json; split "shared").
+        #[arg(required = true)]
+        roots: Vec<PathBuf>,
+        /// Output folder: OUT/<scene>/<method> per run, corpus.txt, corpus.csv,
+        /// corpus.json and corpus_worst_irradiance.png.
+        #[arg(long)]
+        out: PathBuf,
+        /// Methods, comma-separated.
+        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Warp, Method::Flow, Method::Hybrid, Method::Fusion])]
+        methods: Vec<Method>,
+        /// Working size WxH (default: the frames' size).
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(usize, usize)>,
+        /// Compression of the per-frame EXR files (as for `run`).
+        #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
+        exr_compression: lumiprobe::image::io::ExrCompression,
+        #[command(flatten)]
+        warp: WarpOpts,
+        #[command(flatten)]
+        flow: FlowOpts,
+    },
     /// Score predictions against the scene's ground truth, with both baselines.
     Eval {
         /// Scene folder.
@@ -963,6 +988,41 @@ fn real_main(cli: Cli) -> Result<()> {
                         .map(|m| format!("{m:.0} MiB"))
                         .unwrap_or_else(|| "n/a".into())
                 );
+            }
+        }
+        Cmd::Corpus {
+            roots,
+            out,
+            methods,
+            size,
+            exr_compression,
+            warp,
+            flow,
+        } => {
+            use lumiprobe::pipeline::corpus;
+            // The same settings as `run` with these options, per method.
+            let mut params = run_params(Method::Fusion, size, &warp, &flow);
+            params.exr_compression = exr_compression;
+            let quiet = cli.quiet;
+            let report = corpus::run_corpus(
+                &roots,
+                &out,
+                &corpus::CorpusOptions { methods, params },
+                &|line| {
+                    if !quiet {
+                        eprintln!("{line}");
+                    }
+                },
+                &progress_printer(quiet, "frames"),
+            )?;
+            print!("{}", corpus::to_text(&report));
+            let failed = report.failed().len();
+            if failed > 0 {
+                return Err(Error::Invalid(format!(
+                    "{failed} of {} scene and method rows failed (see {})",
+                    report.rows.len(),
+                    out.join("corpus.txt").display()
+                )));
             }
         }
         Cmd::Eval {

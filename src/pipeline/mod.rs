@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod composite;
+pub mod corpus;
 pub mod demo;
 pub mod evaluate;
 pub mod plan;
