@@ -363,6 +363,8 @@ def write_corpus_index(out):
         if not os.path.isfile(stamp):
             continue
         key = json.load(open(stamp))["key"]
+        if key.get("generator_version") != layout.GENERATOR_VERSION:
+            continue  # left by an older generator, to be rebuilt
         scenes.append({"name": d, "seed": key["seed"], "split": split_of(key["seed"]), "dir": d,
                        "size": key["size"], "samples": key["samples"]})
     write_json(os.path.join(out, "corpus.json"),
