@@ -41,6 +41,8 @@ BRACKETS_WIDE = list(range(-12, 3, 2))  # a light-probe photographer's set, 2 EV
 BASE_EXPOSURE_S = 1.0 / 60.0
 F_NUMBER = 2.2
 ISO = 100
+# Bump when scene.py or finish() change what a layout renders to.
+RENDER_VERSION = "1"
 CLIP_CODE = 250  # lumiprobe's clipped code (warp::CLIP_CODE), for the summary
 RESPONSE = ("f(x) = min(1, 1.08 * x^(1/2.2) / (1 + 0.08 * x^(1/2.2))), x = exposure-scaled linear radiance; "
             "Gaussian noise sigma = 0.002 + 0.01*sqrt(x) added before the response; 8-bit")
@@ -243,33 +245,29 @@ def finish(scene_dir, spec, size, render_s):
 
 
 def beyond_probes(frames, probes):
-    """Frames whose plan position lies outside the probes' convex hull (for two
-    probes: beyond either end of the segment between them)."""
-    pts = sorted({(p["position"][0], p["position"][1]) for p in probes})
+    """Frames of the walk before the first or after the last frame that is
+    nearest to some probe: the stretches of the walk beyond every probe."""
+    nearest = [min(range(len(frames)), key=lambda i: math.dist(frames[i]["position"], p["position"]))
+               for p in probes]
+    lo, hi = min(nearest), max(nearest)
+    return [f["id"] for i, f in enumerate(frames) if i < lo or i > hi]
 
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    if len(pts) < 3:
-        (ax, ay), (bx, by) = pts[0], pts[-1]
-        dx, dy = bx - ax, by - ay
-        n2 = dx * dx + dy * dy or 1.0
-        return [f["id"] for f in frames
-                if not 0.0 <= ((f["position"][0] - ax) * dx + (f["position"][1] - ay) * dy) / n2 <= 1.0]
-    hull = []
-    for seq in (pts, pts[::-1]):
-        part = []
-        for p in seq:
-            while len(part) >= 2 and cross(part[-2], part[-1], p) <= 0:
-                part.pop()
-            part.append(p)
-        hull += part[:-1]
-    out = []
-    for f in frames:
-        q = (f["position"][0], f["position"][1])
-        if any(cross(hull[i], hull[(i + 1) % len(hull)], q) < 0 for i in range(len(hull))):
-            out.append(f["id"])
-    return out
+def resummarize(scene_dir):
+    """Rewrites summary.json of a finished scene from its spec, ground truth and
+    SDR frames (for a change to the summary alone)."""
+    import cv2
+    spec = json.load(open(os.path.join(scene_dir, "spec.json")))
+    done = json.load(open(os.path.join(scene_dir, ".done")))
+    gts = [read_exr(os.path.join(scene_dir, "path", f["id"] + "_gt.exr")) for f in spec["frames"]]
+    clipped = []
+    for f in spec["frames"]:
+        codes = cv2.imread(os.path.join(scene_dir, "path", f["id"] + ".jpg"))
+        clipped.append(float((codes.max(axis=2) >= CLIP_CODE).mean()))
+    poses = json.load(open(os.path.join(scene_dir, "poses.json")))
+    write_json(os.path.join(scene_dir, "summary.json"),
+               summary(spec, gts, clipped, poses["stats"]["median_luminance"], done["render_s"],
+                       tuple(poses["resolution"])))
 
 
 def summary(spec, gts, clipped, median, render_s, size):
@@ -303,11 +301,20 @@ def summary(spec, gts, clipped, median, render_s, size):
     }
 
 
+def spec_digest(spec):
+    """SHA-256 of a layout's canonical JSON: the cache key of what a seed draws."""
+    import hashlib
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()
+
+
 def build_scene(out, seed, size, samples, blender, bversion):
     w, h = size
     scene_dir = os.path.join(out, f"s{seed:04d}_{w}x{h}")
-    key = {"generator_version": layout.GENERATOR_VERSION, "seed": seed, "size": [w, h], "samples": samples,
-           "blender": bversion}
+    spec = layout.make(seed)
+    # Keyed by what the seed draws (not the generator version alone): a change
+    # to the generator re-renders only the scenes whose layout it changed.
+    key = {"seed": seed, "spec_sha256": spec_digest(spec), "render_version": RENDER_VERSION, "size": [w, h],
+           "samples": samples, "blender": bversion}
     done = os.path.join(scene_dir, ".done")
     if os.path.isfile(done):
         try:
@@ -328,7 +335,6 @@ def build_scene(out, seed, size, samples, blender, bversion):
             shutil.rmtree(scene_dir)  # made by an older generator or other settings: start over
     os.makedirs(scene_dir, exist_ok=True)
     write_json(started, key)
-    spec = layout.make(seed)
     write_json(os.path.join(scene_dir, "spec.json"), spec)
     log = os.path.join(scene_dir, "render.log")
     with open(log, "a") as lf:
@@ -351,7 +357,7 @@ def build_scene(out, seed, size, samples, blender, bversion):
             except ValueError:
                 pass
     finish(scene_dir, spec, size, render_s)
-    write_json(done, {"key": key, "render_s": round(render_s, 1)})
+    write_json(done, {"key": key, "generator_version": layout.GENERATOR_VERSION, "render_s": round(render_s, 1)})
     print(f"{scene_dir}: done in {render_s:.0f} s ({len(spec['probes'])} probes, {len(spec['frames'])} frames)",
           flush=True)
 
@@ -363,8 +369,8 @@ def write_corpus_index(out):
         if not os.path.isfile(stamp):
             continue
         key = json.load(open(stamp))["key"]
-        if key.get("generator_version") != layout.GENERATOR_VERSION:
-            continue  # left by an older generator, to be rebuilt
+        if key.get("spec_sha256") != spec_digest(layout.make(key["seed"])) or key.get("render_version") != RENDER_VERSION:
+            continue  # left by an older generator or renderer, to be rebuilt
         scenes.append({"name": d, "seed": key["seed"], "split": split_of(key["seed"]), "dir": d,
                        "size": key["size"], "samples": key["samples"]})
     write_json(os.path.join(out, "corpus.json"),
@@ -402,8 +408,14 @@ def main():
     ap.add_argument("--blender", default="blender")
     ap.add_argument("--background", action="store_true", help="detach; log to OUT/build.log")
     ap.add_argument("--summary", action="store_true", help="print the corpus summary table and exit")
+    ap.add_argument("--resummarize", action="store_true", help="rewrite every finished scene's summary.json")
     a = ap.parse_args()
-    if a.summary:
+    if a.resummarize:
+        need_numpy()
+        for d in sorted(os.listdir(a.out)):
+            if os.path.isfile(os.path.join(a.out, d, ".done")):
+                resummarize(os.path.join(a.out, d))
+    if a.summary or a.resummarize:
         print(summary_table(a.out), end="")
         return
     if not a.seeds:

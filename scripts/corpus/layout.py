@@ -18,7 +18,7 @@ scene.py scales the sky to that, lamps and the sun are given in those units.
 import math
 import random
 
-GENERATOR_VERSION = "2"
+GENERATOR_VERSION = "3"
 
 # The captured HDR worlds Blender ships (datafiles/studiolights/world).
 DAY_WORLDS = ["city", "courtyard", "forest", "sunrise", "sunset"]
@@ -283,12 +283,21 @@ class Layout:
             self.world = {"kind": "hdri", "name": name, "rotation_deg": round(rng.uniform(0.0, 360.0), 3)}
             self.lights.append({"type": "sky", "model": f"captured:{name}"})
 
-    def night(self):
+    def night(self, seen=True):
+        """A night sky: the captured night world, or the sky model at dusk (sun
+        2-8 degrees below the horizon), dimmed to a median of 1e-3-2e-2. A sky
+        that is seen is never black: a black sky and the median-metered gain
+        clipped half of a night street. A closed room's sky is never seen."""
         rng = self.rng
         if rng.random() < 0.5:
             self.world = {"kind": "hdri", "name": "night", "rotation_deg": round(rng.uniform(0, 360), 3),
                           "median": round(log_uniform(rng, 1e-3, 2e-2), 5)}
             self.lights.append({"type": "sky", "model": "captured:night"})
+        elif seen:
+            self.world = {"kind": "sky", "sun_elevation_deg": round(-rng.uniform(2.0, 8.0), 3),
+                          "sun_azimuth_deg": round(rng.uniform(0.0, 360.0), 3), "air": 1.0, "dust": 1.0,
+                          "median": round(log_uniform(rng, 1e-3, 2e-2), 5)}
+            self.lights.append({"type": "sky", "model": "nishita:dusk"})
         else:
             self.world = {"kind": "black"}
 
@@ -494,7 +503,7 @@ def indoor(L, kind):
     if lighting in ("day", "mixed", "roof"):
         L.daylight(elevation=(10.0, 60.0) if lighting != "roof" else (35.0, 80.0))
     else:
-        L.night()
+        L.night(seen=windows)
     n_lamps = {"night": rng.randint(1, 5), "day": rng.randint(0, 2), "roof": rng.randint(1, 2), "mixed": rng.randint(1, 3)}[lighting]
     n_panels = {"night": rng.randint(0, 2), "day": rng.randint(0, 1), "roof": 0, "mixed": rng.randint(0, 2)}[lighting]
     if lighting == "night" and n_lamps + n_panels == 0:
