@@ -48,14 +48,19 @@ def node(nt, kind, **inputs):
     return n
 
 
-def surface_material(name, m):
-    """Principled BSDF over a procedural texture evaluated at the world
-    position (boxes are axis-aligned, so 3D textures wrap every face)."""
+def new_material(name):
+    """An empty node material: (material, node tree, output node)."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nt = mat.node_tree
     nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    return mat, nt, nt.nodes.new("ShaderNodeOutputMaterial")
+
+
+def surface_material(name, m):
+    """Principled BSDF over a procedural texture evaluated at the world
+    position (boxes are axis-aligned, so 3D textures wrap every face)."""
+    mat, nt, out = new_material(name)
     bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
     base, alt = tuple(m["base"]) + (1.0,), tuple(m["alt"]) + (1.0,)
     bsdf.inputs["Roughness"].default_value = m["roughness"]
@@ -129,11 +134,7 @@ def surface_material(name, m):
 
 
 def emission_material(name, colour, radiance):
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    mat, nt, out = new_material(name)
     e = nt.nodes.new("ShaderNodeEmission")
     e.inputs["Color"].default_value = tuple(colour) + (1.0,)
     e.inputs["Strength"].default_value = radiance
