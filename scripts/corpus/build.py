@@ -241,7 +241,7 @@ def finish(scene_dir, spec, size, render_s):
     write_json(os.path.join(scene_dir, "poses.json"),
                {"scene": name, "resolution": [w, h], "probes": probes, "frames": frames, "camera": camera,
                 "stats": stats})
-    write_json(os.path.join(scene_dir, "summary.json"), summary(spec, gts, clipped, median, render_s, size))
+    write_json(os.path.join(scene_dir, "summary.json"), summary(spec, gts, clipped, median, render_s, size, scene_dir))
 
 
 def beyond_probes(frames, probes):
@@ -267,10 +267,55 @@ def resummarize(scene_dir):
     poses = json.load(open(os.path.join(scene_dir, "poses.json")))
     write_json(os.path.join(scene_dir, "summary.json"),
                summary(spec, gts, clipped, poses["stats"]["median_luminance"], done["render_s"],
-                       tuple(poses["resolution"])))
+                       tuple(poses["resolution"]), scene_dir))
 
 
-def summary(spec, gts, clipped, median, render_s, size):
+def pixel_directions(w, h):
+    """Camera-space unit direction and solid angle of every pixel of a W x H
+    equirect panorama (the conventions of ../shared/data/README.md)."""
+    import numpy as np
+    v, u = np.mgrid[0:h, 0:w]
+    phi = ((u + 0.5) / w - 0.5) * 2 * np.pi
+    theta = (0.5 - (v + 0.5) / h) * np.pi
+    d = np.stack([np.cos(theta) * np.sin(phi), np.sin(theta), -np.cos(theta) * np.cos(phi)], -1)
+    return d, np.cos(theta) * (2 * np.pi / w) * (np.pi / h)
+
+
+UNSEEN_SHARE = 0.2  # a light giving at least a fifth of the irradiance
+
+
+def unseen_lights(scene_dir, spec, gts):
+    """Frames the inputs cannot answer: a small emitter (lamp or sun) that gives
+    at least UNSEEN_SHARE of the frame's true irradiance at the normal facing
+    it, and that no probe sees (probes are perfect HDR captures, so seeing is
+    measuring). Its share is its flux there over the whole panorama's, both
+    from the ground truth. Area panels, windows and the captured worlds' suns
+    are not checked: they have no footprint to follow."""
+    import numpy as np
+    def footprints(view_id):
+        return json.load(open(os.path.join(scene_dir, "render", view_id + ".emitters.json")))
+    seen = {(e["kind"], e["radiance"]) for p in spec["probes"] for e in footprints(p["id"])}
+    h, w = gts[0].shape[:2]
+    dirs, omega = pixel_directions(w, h)
+    out = []
+    for f, gt in zip(spec["frames"], gts):
+        lum_gt = lum(gt) * omega
+        for e in footprints(f["id"]):
+            rows = np.array([p[0] for p in e["pixels"]])
+            cols = np.array([p[1] for p in e["pixels"]])
+            cover = np.array([p[2] for p in e["pixels"]])
+            flux = e["radiance"] * cover * omega[rows, cols]
+            n = (dirs[rows, cols] * flux[:, None]).sum(0)
+            n /= np.linalg.norm(n) or 1.0
+            own = float((flux * np.maximum(0.0, dirs[rows, cols] @ n)).sum())
+            total = float((lum_gt * np.maximum(0.0, dirs @ n)).sum())
+            share = own / total if total > 0 else 0.0
+            if share >= UNSEEN_SHARE and (e["kind"], e["radiance"]) not in seen:
+                out.append({"id": f["id"], "light": e["kind"], "radiance": e["radiance"], "share": round(share, 3)})
+    return out
+
+
+def summary(spec, gts, clipped, median, render_s, size, scene_dir):
     import numpy as np
     dists = [min(math.dist(f["position"], p["position"]) for p in spec["probes"]) for f in spec["frames"]]
     peaks = [float(lum(g).max()) for g in gts]
@@ -296,6 +341,7 @@ def summary(spec, gts, clipped, median, render_s, size):
                              "frames_with_clipping": int(sum(c > 0 for c in clipped))},
         "probe_distance_m": {"min": min(dists), "median": float(np.median(dists)), "max": max(dists)},
         "frames_beyond_probes": beyond_probes(spec["frames"], spec["probes"]),
+        "unanswerable_frames": unseen_lights(scene_dir, spec, gts),
         "render_s": round(render_s, 1),
         "render_s_per_panorama": round(render_s / views, 2),
     }
@@ -362,15 +408,25 @@ def build_scene(out, seed, size, samples, blender, bversion):
           flush=True)
 
 
-def write_corpus_index(out):
-    scenes = []
+def finished(out):
+    """(folder name, cache key) of each scene of `out` finished by this
+    generator and renderer; scenes left by older ones (to be rebuilt) are not."""
     for d in sorted(os.listdir(out)):
         stamp = os.path.join(out, d, ".done")
         if not os.path.isfile(stamp):
             continue
-        key = json.load(open(stamp))["key"]
-        if key.get("spec_sha256") != spec_digest(layout.make(key["seed"])) or key.get("render_version") != RENDER_VERSION:
-            continue  # left by an older generator or renderer, to be rebuilt
+        try:
+            key = json.load(open(stamp))["key"]
+            if key.get("spec_sha256") == spec_digest(layout.make(key["seed"])) and \
+                    key.get("render_version") == RENDER_VERSION:
+                yield d, key
+        except (OSError, ValueError, KeyError):
+            continue
+
+
+def write_corpus_index(out):
+    scenes = []
+    for d, key in finished(out):
         scenes.append({"name": d, "seed": key["seed"], "split": split_of(key["seed"]), "dir": d,
                        "size": key["size"], "samples": key["samples"]})
     write_json(os.path.join(out, "corpus.json"),
@@ -381,20 +437,18 @@ def write_corpus_index(out):
 
 def summary_table(out):
     rows = []
-    for d in sorted(os.listdir(out)):
-        p = os.path.join(out, d, "summary.json")
-        if not os.path.isfile(p):
-            continue
-        s = json.load(open(p))
-        rows.append("| {} | {} | {} {} | {} | {}/{} | {:.0f} | {:.2%} / {:.2%} | {:.2f} / {:.2f} / {:.2f} | {} | {:.0f} ({:.1f}) |".format(
+    for d, _ in finished(out):
+        s = json.load(open(os.path.join(out, d, "summary.json")))
+        rows.append("| {} | {} | {} {} | {} | {}/{} | {:.0f} | {:.2%} / {:.2%} | {:.2f} / {:.2f} / {:.2f} | {} | {} | {:.0f} ({:.1f}) |".format(
             d, s["split"], s["scene"]["kind"], s["scene"]["lighting"], ", ".join(s["light_types"]),
             s["probes"], s["frames"], s["dynamic_range"]["peak_over_median_max"], s["clipped_fraction"]["mean"],
             s["clipped_fraction"]["max"], s["probe_distance_m"]["min"], s["probe_distance_m"]["median"],
-            s["probe_distance_m"]["max"], len(s["frames_beyond_probes"]), s["render_s"],
+            s["probe_distance_m"]["max"], len(s["frames_beyond_probes"]),
+            len({u["id"] for u in s.get("unanswerable_frames", [])}), s["render_s"],
             s["render_s_per_panorama"]))
     head = ("| scene | split | kind | lights | probes/frames | peak/median | clipped mean / max | "
-            "probe distance min / median / max (m) | frames beyond probes | render s (per panorama) |\n"
-            "|---|---|---|---|---|---|---|---|---|---|\n")
+            "probe distance min / median / max (m) | frames beyond probes | unanswerable frames | render s (per panorama) |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|\n")
     return head + "\n".join(rows) + "\n"
 
 
@@ -412,9 +466,8 @@ def main():
     a = ap.parse_args()
     if a.resummarize:
         need_numpy()
-        for d in sorted(os.listdir(a.out)):
-            if os.path.isfile(os.path.join(a.out, d, ".done")):
-                resummarize(os.path.join(a.out, d))
+        for d, _ in finished(a.out):
+            resummarize(os.path.join(a.out, d))
     if a.summary or a.resummarize:
         print(summary_table(a.out), end="")
         return
