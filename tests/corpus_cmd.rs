@@ -71,14 +71,7 @@ fn num(v: &Value) -> f64 {
         .unwrap_or_else(|| panic!("{v} is not a finite number"))
 }
 
-const METRICS: [&str; 6] = [
-    "psnr_tm",
-    "ssim_tm",
-    "mse_tm",
-    "log_lum_rmse",
-    "irradiance_rel_err",
-    "dominant_dir_err_deg",
-];
+use lumiprobe::eval::METRIC_NAMES as METRICS;
 
 const LABELS: [&str; 4] = ["warp", "fusion", "baseline:nearest-probe", "baseline:sdr"];
 
