@@ -182,7 +182,7 @@ def lum(a):
 
 
 # -- one scene ----------------------------------------------------------------
-def finish(scene_dir, spec, size, render_s):
+def finish(scene_dir, spec, size, render_s, blender):
     """Brackets, SDR frames, poses.json and summary.json from the renders."""
     import numpy as np
     w, h = size
@@ -233,7 +233,7 @@ def finish(scene_dir, spec, size, render_s):
         rel = os.path.join("path", f["id"] + ".jpg")
         codes = camera_codes(gt, gain, np.random.default_rng([spec["seed"], 2, k]))
         write_jpeg(os.path.join(scene_dir, rel), codes, 90)
-        clipped.append(float((codes.max(axis=2) >= CLIP_CODE).mean()))
+        clipped.append(clipped_share(os.path.join(scene_dir, rel)))
         frames.append({"id": f["id"], "position": f["position"], "yaw_pitch_roll_deg": f["yaw_pitch_roll_deg"],
                        "world_from_camera": world_from_camera(f["yaw_pitch_roll_deg"]), "sdr": rel,
                        "ground_truth": os.path.join("path", f["id"] + "_gt.exr")})
@@ -241,6 +241,7 @@ def finish(scene_dir, spec, size, render_s):
     write_json(os.path.join(scene_dir, "poses.json"),
                {"scene": name, "resolution": [w, h], "probes": probes, "frames": frames, "camera": camera,
                 "stats": stats})
+    see_bright(scene_dir, spec, size, gain, blender)
     write_json(os.path.join(scene_dir, "summary.json"), summary(spec, gts, clipped, median, render_s, size, scene_dir))
 
 
@@ -253,18 +254,22 @@ def beyond_probes(frames, probes):
     return [f["id"] for i, f in enumerate(frames) if i < lo or i > hi]
 
 
-def resummarize(scene_dir):
+def clipped_share(jpeg):
+    """Share of an SDR frame's pixels with some channel at or above CLIP_CODE,
+    as the JPEG decodes (its compression smooths the noise's speckles)."""
+    import cv2
+    return float((cv2.imread(jpeg).max(axis=2) >= CLIP_CODE).mean())
+
+
+def resummarize(scene_dir, blender):
     """Rewrites summary.json of a finished scene from its spec, ground truth and
     SDR frames (for a change to the summary alone)."""
-    import cv2
     spec = json.load(open(os.path.join(scene_dir, "spec.json")))
     done = json.load(open(os.path.join(scene_dir, ".done")))
     gts = [read_exr(os.path.join(scene_dir, "path", f["id"] + "_gt.exr")) for f in spec["frames"]]
-    clipped = []
-    for f in spec["frames"]:
-        codes = cv2.imread(os.path.join(scene_dir, "path", f["id"] + ".jpg"))
-        clipped.append(float((codes.max(axis=2) >= CLIP_CODE).mean()))
+    clipped = [clipped_share(os.path.join(scene_dir, "path", f["id"] + ".jpg")) for f in spec["frames"]]
     poses = json.load(open(os.path.join(scene_dir, "poses.json")))
+    see_bright(scene_dir, spec, tuple(poses["resolution"]), poses["camera"]["path_gain"], blender)
     write_json(os.path.join(scene_dir, "summary.json"),
                summary(spec, gts, clipped, poses["stats"]["median_luminance"], done["render_s"],
                        tuple(poses["resolution"]), scene_dir))
@@ -284,39 +289,98 @@ def pixel_directions(w, h):
 UNSEEN_SHARE = 0.2  # a light giving at least a fifth of the irradiance
 
 
-def unseen_lights(scene_dir, spec, gts):
-    """Frames the inputs cannot answer: a small emitter (lamp or sun) that gives
-    at least UNSEEN_SHARE of the frame's true irradiance at the normal facing
-    it, and that no probe sees (probes are perfect HDR captures, so seeing is
-    measuring). Its share is its flux there over the whole panorama's, both
-    from the ground truth. Area panels, windows and the captured worlds' suns
-    are not checked: they have no footprint to follow."""
+def clip_radiance(gain):
+    """Scene radiance at which a channel of the SDR frame reaches CLIP_CODE
+    (the documented response without noise; codes are rounded)."""
+    v = (CLIP_CODE - 0.5) / 255.0
+    y = v / (1.08 - 0.08 * v)
+    return y ** 2.2 / gain
+
+
+def bright_pixels(scene_dir, view_id, gain):
+    """(row, col) of the pixels of a view's render (small emitters left out)
+    with some channel above the SDR frame's white point: the light the frame
+    cannot measure, which must come from the probes."""
+    import numpy as np
+    raw = read_exr(os.path.join(scene_dir, "render", view_id + ".exr"))
+    rows, cols = np.nonzero(raw.max(axis=2) >= clip_radiance(gain))
+    return raw, [[int(r), int(c)] for r, c in zip(rows, cols)]
+
+
+def see_bright(scene_dir, spec, size, gain, blender):
+    """Writes render/<frame>.bright.json and has Blender answer, for each bright
+    pixel, whether some probe sees what it sees (render/<frame>.seen.json)."""
+    todo = False
+    for f in spec["frames"]:
+        dst = os.path.join(scene_dir, "render", f["id"] + ".bright.json")
+        if not os.path.isfile(os.path.join(scene_dir, "render", f["id"] + ".seen.json")):
+            write_json(dst, bright_pixels(scene_dir, f["id"], gain)[1])
+            todo = True
+    if not todo:
+        return
+    log = os.path.join(scene_dir, "render.log")
+    with open(log, "a") as lf:
+        r = subprocess.run([blender, "-b", "--factory-startup", "--python", os.path.join(HERE, "scene.py"), "--",
+                            os.path.join(scene_dir, "spec.json"), scene_dir, str(size[0]), str(size[1]), "1",
+                            "--seen"], stdout=lf, stderr=subprocess.STDOUT)
+    if r.returncode != 0:
+        sys.exit(f"{scene_dir}: Blender failed on the visibility pass (exit {r.returncode}); see {log}")
+
+
+def unseen_lights(scene_dir, spec, gts, gain):
+    """Frames the inputs cannot answer. The light a frame cannot measure is
+    what lies above its white point: the small emitters (lamps, sun) and every
+    surface or sky pixel brighter than the white point. Of it, the part no
+    probe sees (probes are perfect HDR captures, so seeing is measuring) is
+    unseen: emitters by their footprints, bright pixels by Blender ray casts
+    (see_bright). A frame is unanswerable when the unseen light gives at least
+    UNSEEN_SHARE of its true irradiance at the normal facing that light (the
+    unseen flux's mean direction), both from the ground truth. Returns
+    (flagged frames, the unseen share of every frame)."""
     import numpy as np
     def footprints(view_id):
         return json.load(open(os.path.join(scene_dir, "render", view_id + ".emitters.json")))
     seen = {(e["kind"], e["radiance"]) for p in spec["probes"] for e in footprints(p["id"])}
     h, w = gts[0].shape[:2]
     dirs, omega = pixel_directions(w, h)
-    out = []
+    flagged, shares = [], {}
     for f, gt in zip(spec["frames"], gts):
-        lum_gt = lum(gt) * omega
+        raw, bright = bright_pixels(scene_dir, f["id"], gain)
+        seen_px = json.load(open(os.path.join(scene_dir, "render", f["id"] + ".seen.json")))
+        if len(seen_px) != len(bright):
+            sys.exit(f"{scene_dir}: render/{f['id']}.seen.json does not match its bright pixels; delete it")
+        d_parts, flux_parts, kinds = [], [], set()
+        hidden = [p for p, s in zip(bright, seen_px) if not s]
+        if hidden:
+            r, c = np.array(hidden).T
+            d_parts.append(dirs[r, c])
+            flux_parts.append(lum(raw)[r, c] * omega[r, c])
+            kinds.add("bright surface or sky")
         for e in footprints(f["id"]):
-            rows = np.array([p[0] for p in e["pixels"]])
-            cols = np.array([p[1] for p in e["pixels"]])
-            cover = np.array([p[2] for p in e["pixels"]])
-            flux = e["radiance"] * cover * omega[rows, cols]
-            n = (dirs[rows, cols] * flux[:, None]).sum(0)
+            if (e["kind"], e["radiance"]) in seen:
+                continue
+            px = np.array(e["pixels"])
+            r, c = px[:, 0].astype(int), px[:, 1].astype(int)
+            d_parts.append(dirs[r, c])
+            flux_parts.append(e["radiance"] * px[:, 2] * omega[r, c])
+            kinds.add(e["kind"])
+        share = 0.0
+        if d_parts:
+            d, flux = np.concatenate(d_parts), np.concatenate(flux_parts)
+            n = (d * flux[:, None]).sum(0)
             n /= np.linalg.norm(n) or 1.0
-            own = float((flux * np.maximum(0.0, dirs[rows, cols] @ n)).sum())
-            total = float((lum_gt * np.maximum(0.0, dirs @ n)).sum())
+            own = float((flux * np.maximum(0.0, d @ n)).sum())
+            total = float((lum(gt) * omega * np.maximum(0.0, dirs @ n)).sum())
             share = own / total if total > 0 else 0.0
-            if share >= UNSEEN_SHARE and (e["kind"], e["radiance"]) not in seen:
-                out.append({"id": f["id"], "light": e["kind"], "radiance": e["radiance"], "share": round(share, 3)})
-    return out
+        shares[f["id"]] = round(share, 4)
+        if share >= UNSEEN_SHARE:
+            flagged.append({"id": f["id"], "unseen": sorted(kinds), "share": round(share, 3)})
+    return flagged, shares
 
 
 def summary(spec, gts, clipped, median, render_s, size, scene_dir):
     import numpy as np
+    flagged, shares = unseen_lights(scene_dir, spec, gts, 0.18 / median)
     dists = [min(math.dist(f["position"], p["position"]) for p in spec["probes"]) for f in spec["frames"]]
     peaks = [float(lum(g).max()) for g in gts]
     p999 = [float(np.percentile(lum(g), 99.9)) for g in gts]
@@ -341,7 +405,8 @@ def summary(spec, gts, clipped, median, render_s, size, scene_dir):
                              "frames_with_clipping": int(sum(c > 0 for c in clipped))},
         "probe_distance_m": {"min": min(dists), "median": float(np.median(dists)), "max": max(dists)},
         "frames_beyond_probes": beyond_probes(spec["frames"], spec["probes"]),
-        "unanswerable_frames": unseen_lights(scene_dir, spec, gts),
+        "unanswerable_frames": flagged,
+        "unseen_light_share": shares,
         "render_s": round(render_s, 1),
         "render_s_per_panorama": round(render_s / views, 2),
     }
@@ -402,7 +467,7 @@ def build_scene(out, seed, size, samples, blender, bversion):
                 render_s += float(line.split(" in ")[-1][:-3])
             except ValueError:
                 pass
-    finish(scene_dir, spec, size, render_s)
+    finish(scene_dir, spec, size, render_s, blender)
     write_json(done, {"key": key, "generator_version": layout.GENERATOR_VERSION, "render_s": round(render_s, 1)})
     print(f"{scene_dir}: done in {render_s:.0f} s ({len(spec['probes'])} probes, {len(spec['frames'])} frames)",
           flush=True)
@@ -467,7 +532,7 @@ def main():
     if a.resummarize:
         need_numpy()
         for d, _ in finished(a.out):
-            resummarize(os.path.join(a.out, d))
+            resummarize(os.path.join(a.out, d), a.blender)
     if a.summary or a.resummarize:
         print(summary_table(a.out), end="")
         return

@@ -10,6 +10,13 @@ cover, unoccluded, with their radiance. build.py adds the two into the ground
 truth. Each file is written to a temporary name and renamed, so an interrupted
 build resumes where it stopped; existing files are kept. Prints one line per
 panorama with its render time.
+
+    blender -b --factory-startup --python scene.py -- SPEC.json OUT_DIR W H SAMPLES --seen
+
+renders nothing: for each frame it reads OUT_DIR/render/<id>.bright.json (the
+pixels build.py found above the SDR frame's white point) and writes
+OUT_DIR/render/<id>.seen.json, whether some probe sees the surface point (or
+the sky direction) each of those pixels sees.
 """
 
 import json
@@ -427,10 +434,71 @@ def footprints(spec, position, rotation, w, h, sub=8):
     return result
 
 
+def pixel_ray(rotation, row, col, w, h):
+    from mathutils import Vector
+    ph, th = ((col + 0.5) / w - 0.5) * 2 * math.pi, (0.5 - (row + 0.5) / h) * math.pi
+    return rotation @ Vector((math.cos(th) * math.sin(ph), math.sin(th), -math.cos(th) * math.cos(ph)))
+
+
+def seen_by_probes(spec, position, rotation, pixels, w, h):
+    """For each (row, col) of the camera at `position`: 1 when some probe sees
+    what the pixel's centre ray sees (the first surface point it meets, from
+    the side it faces, unoccluded; or, for a ray to the sky, the same sky
+    direction unoccluded), else 0. Small emitters (lamps, sun) are not geometry
+    here; their footprints answer for them."""
+    from mathutils import Vector
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    sc = bpy.context.scene
+    cam = Vector(position)
+    probes = [Vector(p["position"]) for p in spec["probes"]]
+    out = []
+    for row, col in pixels:
+        d = pixel_ray(rotation, row, col, w, h)
+        hit, x, normal = sc.ray_cast(depsgraph, cam, d, distance=1.0e4)[:3]
+        seen = 0
+        for p in probes:
+            if not hit:
+                seen = int(not sc.ray_cast(depsgraph, p, d, distance=1.0e4)[0])
+            else:
+                to = x - p
+                dist = to.length
+                if dist < 1e-4:
+                    seen = 1
+                elif normal.dot(-to) > 0.0:
+                    seen = int(not sc.ray_cast(depsgraph, p, to / dist, distance=dist - 1e-3)[0])
+            if seen:
+                break
+        out.append(seen)
+    return out
+
+
+def seen_mode(spec, out, w, h):
+    from mathutils import Euler
+    raw = os.path.join(out, "render")
+    for view in spec["frames"]:
+        src = os.path.join(raw, view["id"] + ".bright.json")
+        dst = os.path.join(raw, view["id"] + ".seen.json")
+        if os.path.isfile(dst) or not os.path.isfile(src):
+            continue
+        t = time.time()
+        pixels = json.load(open(src))
+        yaw, pitch, roll = view["yaw_pitch_roll_deg"]
+        rot = Euler((math.radians(90 + pitch), math.radians(roll), math.radians(yaw)), "XYZ").to_matrix()
+        seen = seen_by_probes(spec, view["position"], rot, pixels, w, h)
+        with open(dst + ".part", "w") as f:
+            json.dump(seen, f)
+        os.replace(dst + ".part", dst)
+        print(f"seen {view['id']}: {sum(seen)} of {len(seen)} bright pixels in {time.time() - t:.2f} s", flush=True)
+
+
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
     spec_path, out, w, h, samples = argv[0], argv[1], int(argv[2]), int(argv[3]), int(argv[4])
     spec = json.load(open(spec_path))
+    if "--seen" in argv[5:]:
+        build(spec)
+        seen_mode(spec, out, w, h)
+        return
     samples *= spec["scene"].get("samples_factor", 1)
     settings(w, h, samples, spec["seed"])
     build(spec)
