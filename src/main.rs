@@ -310,6 +310,13 @@ enum Cmd {
         /// Compression of the per-frame EXR files (as for `run`).
         #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
         exr_compression: lumiprobe::image::io::ExrCompression,
+        /// Only the scenes of these splits, comma-separated (default: all).
+        #[arg(long, value_enum, value_delimiter = ',')]
+        split: Vec<lumiprobe::pipeline::corpus::Split>,
+        /// A setting as KEY=VALUE, KEY a path into the run's settings
+        /// (`fusion.max_angle_deg=5`); repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         #[command(flatten)]
         warp: WarpOpts,
         #[command(flatten)]
@@ -996,6 +1003,8 @@ fn real_main(cli: Cli) -> Result<()> {
             methods,
             size,
             exr_compression,
+            split,
+            set,
             warp,
             flow,
         } => {
@@ -1003,11 +1012,16 @@ fn real_main(cli: Cli) -> Result<()> {
             // The same settings as `run` with these options, per method.
             let mut params = run_params(Method::Fusion, size, &warp, &flow);
             params.exr_compression = exr_compression;
+            let params = params.with_settings(&set)?;
             let quiet = cli.quiet;
             let report = corpus::run_corpus(
                 &roots,
                 &out,
-                &corpus::CorpusOptions { methods, params },
+                &corpus::CorpusOptions {
+                    methods,
+                    params,
+                    splits: split,
+                },
                 &|line| {
                     if !quiet {
                         eprintln!("{line}");

@@ -56,11 +56,17 @@ def main():
     ap.add_argument("pred")
     ap.add_argument("--frames", default="")
     ap.add_argument("--regions", type=int, default=4)
+    ap.add_argument("--brief", action="store_true",
+                    help="one line per scene: mean and worst over frames of the power put in clipped regions beyond "
+                         "their truth (over), missing from them (under) and the error outside them, each over the "
+                         "frame's true power")
     a = ap.parse_args()
     poses = json.load(open(os.path.join(a.scene, "poses.json")))
     gain = poses["camera"]["path_gain"]
     only = {int(x) for x in a.frames.split(",") if x}
-    print("frame     P_true   P_pred   P_sdr | outside: true   pred | clipped: true  pred  sdr_lo | regions (px: true / pred)")
+    rows = []
+    if not a.brief:
+        print("frame     P_true   P_pred   P_sdr | outside: true   pred | clipped: true  pred  sdr_lo | regions (px: true / pred)")
     for k, f in enumerate(poses["frames"]):
         if only and k not in only:
             continue
@@ -84,11 +90,24 @@ def main():
             regs.append((m.sum(), pt[m].sum(), pq[m].sum()))
         regs.sort(key=lambda t: -abs(t[2] - t[1]))
         out = ~clipped
+        total = pt.sum()
+        rows.append((sum(max(0.0, q - t) for _, t, q in regs) / total,
+                     sum(max(0.0, t - q) for _, t, q in regs) / total,
+                     abs(pq[out].sum() - pt[out].sum()) / total))
+        if a.brief:
+            continue
         print(
             f"{f['id']}  {pt.sum():8.3f} {pq.sum():8.3f} {ps.sum():7.3f} | {pt[out].sum():13.3f} {pq[out].sum():6.3f} |"
             f" {pt[clipped].sum():13.3f} {pq[clipped].sum():5.3f} {ps[clipped].sum():7.3f} | "
             + "  ".join(f"{c}: {t:.3f}/{q:.3f}" for c, t, q in regs[: a.regions])
         )
+
+
+    if a.brief and rows:
+        r = np.array(rows)
+        name = os.path.basename(os.path.normpath(a.scene))
+        print(f"{name:16s} over {r[:, 0].mean():6.3f} (worst {r[:, 0].max():6.3f})  under {r[:, 1].mean():6.3f} "
+              f"(worst {r[:, 1].max():6.3f})  outside {r[:, 2].mean():6.3f} (worst {r[:, 2].max():6.3f})")
 
 
 if __name__ == "__main__":

@@ -90,6 +90,42 @@ impl RunParams {
     }
 }
 
+impl RunParams {
+    /// These settings with `KEY=VALUE` assignments applied, keys being paths into
+    /// the settings as serialized (`fusion.max_angle_deg=5`, `flow.clip_code=245`)
+    /// and values JSON (a bare word is taken as a string). For sweeping a constant
+    /// over a corpus without a flag for each.
+    pub fn with_settings(&self, assignments: &[String]) -> Result<RunParams> {
+        let mut tree = serde_json::to_value(self)
+            .map_err(|e| Error::Invalid(format!("settings cannot be serialized: {e}")))?;
+        for a in assignments {
+            let Some((key, value)) = a.split_once('=') else {
+                return Err(Error::Invalid(format!(
+                    "--set {a:?}: expected KEY=VALUE, e.g. fusion.max_angle_deg=5"
+                )));
+            };
+            let value: serde_json::Value = serde_json::from_str(value)
+                .unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
+            let mut node = &mut tree;
+            for part in key.split('.') {
+                node = match node.get_mut(part) {
+                    Some(n) => n,
+                    None => {
+                        return Err(Error::Invalid(format!(
+                            "--set {a:?}: there is no setting {key:?} (no {part:?} there)"
+                        )))
+                    }
+                };
+            }
+            *node = value;
+        }
+        let mut out: RunParams = serde_json::from_value(tree)
+            .map_err(|e| Error::Invalid(format!("--set: {e}")))?;
+        out.exr_compression = self.exr_compression;
+        Ok(out)
+    }
+}
+
 impl Default for RunParams {
     fn default() -> Self {
         RunParams {

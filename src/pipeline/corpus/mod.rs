@@ -46,7 +46,9 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Which part of a corpus a scene belongs to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Split {
     /// Scenes to develop on.
@@ -213,6 +215,9 @@ pub struct CorpusOptions {
     pub methods: Vec<Method>,
     /// Settings of each run; `method` is replaced by each of `methods`.
     pub params: RunParams,
+    /// Only scenes of these splits (all when empty): settings are chosen on the
+    /// development scenes and reported on the validation ones.
+    pub splits: Vec<Split>,
 }
 
 /// One `(scene, method or baseline)` row.
@@ -315,7 +320,16 @@ pub fn run_corpus(
     log: &dyn Fn(&str),
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<CorpusReport> {
-    let (infos, scenes) = discover(roots)?;
+    let (infos, mut scenes) = discover(roots)?;
+    if !opts.splits.is_empty() {
+        scenes.retain(|s| opts.splits.contains(&s.split));
+        if scenes.is_empty() {
+            return Err(Error::Invalid(format!(
+                "no scene of the corpora is in the splits asked for ({})",
+                opts.splits.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+            )));
+        }
+    }
     let loaded: Vec<Scene> = scenes
         .iter()
         .map(|s| Scene::load(&s.dir))
