@@ -47,11 +47,6 @@ pub struct PlacedLight {
     pub peak: [f64; 2],
     /// Indices of the two probes' [`Light`]s it was placed from.
     pub from: (usize, usize),
-    /// How far the light may be from `position` (poses' unit): the gap between
-    /// the two rays plus what half a probe pixel of direction error moves it,
-    /// across each ray and along it (depth from a baseline). For a light at
-    /// infinity, the angle (radians) within which its direction is known.
-    pub uncertainty: f32,
 }
 
 impl Light {
@@ -147,25 +142,15 @@ pub fn find_lights(
 
 /// Matches the lights of two probes (at `pa` and `pb`) whose rays nearly meet (gap
 /// below `max_gap`, in the poses' unit, in front of both) or are parallel (sources at infinity),
-/// best pairs first, each light used once. `pixel_rad` is the angle of a probe
-/// pixel, which bounds how well a probe knows a light's direction.
-pub fn triangulate(
-    a: &[Light],
-    pa: Vec3,
-    b: &[Light],
-    pb: Vec3,
-    max_gap: f32,
-    pixel_rad: f32,
-) -> Vec<PlacedLight> {
-    let half = 0.5 * pixel_rad;
+/// best pairs first, each light used once.
+pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -> Vec<PlacedLight> {
     let mut pairs = Vec::new();
     for (i, la) in a.iter().enumerate() {
         for (j, lb) in b.iter().enumerate() {
             let cos = la.dir.dot(lb.dir);
             if cos > 0.9998 {
                 // Parallel within about a degree: a source at infinity.
-                let angle = cos.min(1.0).acos();
-                pairs.push((0.0f32, i, j, None, angle + half));
+                pairs.push((0.0f32, i, j, None));
                 continue;
             }
             // Closest points of the rays pa + s da and pb + t db.
@@ -183,18 +168,14 @@ pub fn triangulate(
             let (qa, qb) = (pa + da * s, pb + db * t);
             let gap = qa.distance(qb);
             if gap <= max_gap {
-                // Half a pixel of direction error moves the point s * half across
-                // ray a, and along it by that over the sine of the rays' angle.
-                let sin = denom.sqrt().max(1e-3);
-                let across = s.max(t) * half;
-                pairs.push((gap, i, j, Some((qa + qb) * 0.5), gap + across + across / sin));
+                pairs.push((gap, i, j, Some((qa + qb) * 0.5)));
             }
         }
     }
     pairs.sort_by(|x, y| x.0.total_cmp(&y.0));
     let (mut used_a, mut used_b) = (vec![false; a.len()], vec![false; b.len()]);
     let mut out = Vec::new();
-    for (_, i, j, pos, uncertainty) in pairs {
+    for (_, i, j, pos) in pairs {
         if used_a[i] || used_b[j] {
             continue;
         }
@@ -211,7 +192,6 @@ pub fn triangulate(
                 radiance,
                 peak,
                 from: (i, j),
-                uncertainty,
             },
             None => PlacedLight {
                 position: Vec3::ZERO,
@@ -221,7 +201,6 @@ pub fn triangulate(
                 radiance,
                 peak,
                 from: (i, j),
-                uncertainty,
             },
         });
     }
@@ -488,8 +467,7 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
     let (la, lb) = (find(a.0, a.1), find(b.0, b.1));
     let (pa, pb) = (a.1.position, b.1.position);
     let mut lights = Vec::new();
-    let pixel_rad = std::f32::consts::TAU / a.0.width().min(b.0.width()).max(1) as f32;
-    for l in triangulate(&la, pa, &lb, pb, p.max_gap_rel * pa.distance(pb), pixel_rad) {
+    for l in triangulate(&la, pa, &lb, pb, p.max_gap_rel * pa.distance(pb)) {
         // Two probes that disagree on the light's intensity (power times squared
         // distance) saw different parts of it or different lights: the
         // inverse-square model does not hold, the estimate decides.
@@ -525,13 +503,6 @@ impl PairLights {
             .iter()
             .map(|(l, surface)| {
                 let (d, mut pw) = l.seen_from(frame.position);
-                // The angle within which the frame may see the light.
-                let spread = if l.at_infinity {
-                    l.uncertainty
-                } else {
-                    let dist = l.position.distance(frame.position).max(1e-6);
-                    (l.uncertainty / dist).atan()
-                };
                 // A frame taken at a probe (within 1 mm) sees the light exactly as
                 // that probe did: no extrapolation from the other one.
                 let at = |q: Vec3| distance_m(q, frame.position) < 1e-3;
@@ -545,8 +516,6 @@ impl PairLights {
                     power: pw,
                     radiance: l.radiance[0].max(l.radiance[1]),
                     peak: l.peak[0].max(l.peak[1]),
-                    spread,
-                    at_infinity: l.at_infinity,
                     view: surface.map(|surface| LightView {
                         surface,
                         probes: [a, b],
@@ -595,7 +564,7 @@ pub(crate) mod tests {
             solid_angle: 0.01,
             ..Default::default()
         };
-        let placed = triangulate(&[la, far.clone()], pa, &[far, lb], pb, 0.2, 0.01);
+        let placed = triangulate(&[la, far.clone()], pa, &[far, lb], pb, 0.2);
         assert_eq!(placed.len(), 2);
         let lamp_light = placed.iter().find(|p| !p.at_infinity).unwrap();
         assert!(lamp_light.position.distance(lamp) < 1e-3);
@@ -710,7 +679,6 @@ pub(crate) mod tests {
             radiance: [1.0, 1.0],
             peak: [1.0, 1.0],
             from: (0, 0),
-            uncertainty: 0.0,
         };
         // Seen from 1.1 m: probe A (at 1 m) predicts 4 / 1.21, probe B (at 3 m)
         // 0.3 * 9 / 1.21.
@@ -741,7 +709,7 @@ pub(crate) mod tests {
                 solid_angle: 0.01,
                 ..Default::default()
             };
-            triangulate(&[la], pa, &[lb], pb, 0.2, 0.01)[0]
+            triangulate(&[la], pa, &[lb], pb, 0.2)[0]
         };
         // A compact source: power falls with the squared distance, same intensity.
         assert!(light(1.0, (da / db).powi(2)).consistent(2.0));
@@ -862,7 +830,7 @@ pub(crate) mod tests {
         );
         assert_eq!((la.len(), lb.len()), (1, 1));
         assert!(la[0].pixels.len() > 3 * lb[0].pixels.len());
-        let placed = triangulate(&la, a.position, &lb, b.position, 0.5, 0.01);
+        let placed = triangulate(&la, a.position, &lb, b.position, 0.5);
         assert_eq!(placed.len(), 1);
         let (surface, _) = fit_surface((&ia, &a), &la[0], (&ib, &b), &lb[0], placed[0].position);
         match surface {
@@ -891,7 +859,7 @@ pub(crate) mod tests {
             find_lights(&ib, &b, white, 3, 0.7),
         );
         assert_eq!((la.len(), lb.len()), (1, 1));
-        let placed = triangulate(&la, a.position, &lb, b.position, 0.2, 0.01);
+        let placed = triangulate(&la, a.position, &lb, b.position, 0.2);
         assert_eq!(placed.len(), 1);
         let point = placed[0].position;
         assert!((point.z - 2.6).abs() < 0.1, "{point}");

@@ -177,8 +177,7 @@ pub struct FusionParams {
     /// surfaces) are kept from the SDR frame rather than treated as light sources.
     pub min_core_px: usize,
     /// Largest angle between a light in the estimate and a clipped region for the
-    /// light to be attributed to that region (lights placed in 3-D are not
-    /// moved: see [`fuse_with_lights`]).
+    /// light to be attributed to that region.
     pub max_angle_deg: f32,
     /// Width in pixels of the log-domain cross-fade at the edge of filled regions
     /// (0 by default: the pixels around a filled region are measurements, and
@@ -344,26 +343,6 @@ pub struct BlobReport {
     pub reprojected: bool,
 }
 
-/// One light placed in 3-D, as a frame sees it.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct LightReport {
-    /// Where the frame would see it (column, row).
-    pub at_px: (f32, f32),
-    /// Its power above the white point at the frame.
-    pub power: f64,
-    /// The angle within which the frame may see it, in degrees.
-    pub spread_deg: f32,
-    /// The clipped region (index into the blobs) that took it; `None` when the
-    /// frame measured below its white point there (hidden).
-    pub region: Option<usize>,
-    /// Brightest radiance above the white point a probe saw in it.
-    #[serde(default)]
-    pub peak: f32,
-    /// The base estimate's brightest luminance within two pixels of `at_px`.
-    #[serde(default)]
-    pub near_estimate: f32,
-}
-
 /// What the fusion did for one frame.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct FusionReport {
@@ -373,13 +352,6 @@ pub struct FusionReport {
     pub blobs: Vec<BlobReport>,
     /// Clipped regions without a counterpart in the estimate.
     pub unmatched: usize,
-    /// Lights the probes placed on pixels the frame measured below its white
-    /// point (hidden from the frame: not carried).
-    #[serde(default)]
-    pub hidden_lights: usize,
-    /// The lights placed in 3-D as this frame sees them.
-    #[serde(default)]
-    pub lights: Vec<LightReport>,
     /// Time of the fusion itself (light placement included), in milliseconds.
     #[serde(default)]
     pub time_ms: f64,
@@ -423,11 +395,6 @@ pub struct FrameLight<'a> {
     /// Brightest radiance above the white point either probe saw in the light (0 =
     /// unknown): the most a frame pixel of it can hold.
     pub peak: f64,
-    /// Angle (radians) around `dir` within which the frame may see the light:
-    /// how well the probes placed it, seen from the frame.
-    pub spread: f32,
-    /// True for a light at infinity (the two probes saw it in one direction).
-    pub at_infinity: bool,
     /// The light pixel by pixel through the surface it lies on, when the probes
     /// agree on one.
     pub view: Option<lights::LightView<'a>>,
@@ -445,12 +412,10 @@ pub fn fuse(
     fuse_with_lights(sdr, sdr_linear, estimate, white, &[], None, p)
 }
 
-/// Like [`fuse`], with lights placed in 3-D ([`lights`]) as the frame sees them: a
-/// clipped region that holds such a light (within half a pixel's diagonal of its
-/// direction) receives its power instead of the estimate's; a light whose
-/// direction the frame measured below its white point is hidden from the frame
-/// and is counted in [`FusionReport::hidden_lights`]. A region whose lights are
-/// all at infinity receives the larger of their power and the estimate's. NaN, infinite or negative samples in
+/// Like [`fuse`], with lights placed in 3-D ([`lights`]) given as `(direction in the
+/// frame's camera axes, power above the white point at the frame)`: a clipped region
+/// that contains (or is nearest, within `max_angle_deg`, to) such lights receives their
+/// power instead of the estimate's. NaN, infinite or negative samples in
 /// `sdr_linear` or `estimate` are an [`Error::Invalid`] naming the image.
 pub fn fuse_with_lights(
     sdr: &SdrImage,
@@ -598,32 +563,15 @@ pub fn fuse_with_lights(
     // Lights placed in 3-D, assigned to the region they fall in or the nearest one.
     let mut anchor_power = vec![0.0f64; n];
     let mut anchored = vec![false; n];
-    let mut anchored_near = vec![false; n];
     let mut anchor_radiance = vec![0.0f64; n];
     let mut anchor_peak = vec![0.0f64; n];
     // Per region, the strongest placed light that can be carried pixel by pixel.
     let mut view: Vec<Option<(f64, &lights::LightView)>> = vec![None; n];
-    // The frame's clipped pixels with their directions, for the placed lights'
-    // evidence: a light can only be where the frame saw something at or above
-    // its white point.
-    let labelled: Vec<(u32, glam::Vec3)> = if placed.is_empty() {
-        Vec::new()
-    } else {
-        (0..w * h)
-            .filter(|&i| lab[i] != u32::MAX)
-            .map(|i| (lab[i], dirs(i)))
-            .collect()
-    };
-    // Half a frame pixel's diagonal: the pose's and the pixel grid's share of
-    // the reach.
-    let pixel_reach = std::f32::consts::PI / w as f32 * std::f32::consts::SQRT_2;
     for &FrameLight {
         dir: d,
         power: pw,
         radiance,
         peak,
-        spread,
-        at_infinity,
         view: ref light_view,
     } in placed
     {
@@ -637,49 +585,19 @@ pub fn fuse_with_lights(
         );
         let mut target = lab[y * w + x];
         if target == u32::MAX {
-            // A clipped pixel within half a pixel's diagonal of the light's
-            // direction. Farther, the frame measured the light's direction below
-            // its white point: the light is hidden from the frame (behind a door
-            // frame, a facade's edge) and lights nothing. Before, such a light
-            // went to the nearest region within `max_angle_deg`. Its own spread
-            // is not added: on the development scenes (2026-12-03) a reach of
-            // the spread put lamps hidden just behind an edge into the lit region
-            // beside them (dev mean irradiance error 0.259 with the spread, 0.245
-            // without, with energy kept; validation unchanged).
             let dn = d.normalize_or_zero();
-            let mut best = pixel_reach.cos();
-            for &(l, pd) in &labelled {
-                let c = dn.dot(pd);
+            let mut best = cos_max;
+            for (b, bd) in blob_dir.iter().enumerate() {
+                let c = dn.dot(bd.normalize_or_zero());
                 if c >= best {
                     best = c;
-                    target = l;
+                    target = b as u32;
                 }
             }
-            if target == u32::MAX {
-                report.hidden_lights += 1;
-            }
         }
-        // The estimate's brightest luminance within two pixels of the light.
-        let mut near_estimate = 0.0f32;
-        for dy in -2i64..=2 {
-            let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
-            for dx in -2i64..=2 {
-                let xx = (x as i64 + dx).rem_euclid(w as i64) as usize;
-                near_estimate = near_estimate.max(luminance(estimate.get(xx, yy)));
-            }
-        }
-        report.lights.push(LightReport {
-            at_px: (u * w as f32, v * h as f32),
-            power: pw,
-            spread_deg: spread.to_degrees(),
-            region: (target != u32::MAX).then_some(target as usize),
-            peak: peak as f32,
-            near_estimate,
-        });
         if target != u32::MAX {
             anchor_power[target as usize] += pw;
             anchored[target as usize] = true;
-            anchored_near[target as usize] |= !at_infinity;
             if let Some(v) = light_view {
                 let best = &mut view[target as usize];
                 if best.map_or(true, |(p0, _)| pw > p0) {
@@ -705,21 +623,8 @@ pub fn fuse_with_lights(
         Transfer::Power => false,
         Transfer::Auto => core_count[o] >= p.resolved_px,
     };
-    let from_estimate = |o: usize| est_power[o].min(est_peak[o] * core_area[o]);
     let target_power: Vec<f64> = (0..n)
         .map(|o| {
-            // A region whose placed lights are all at infinity (sky texture, the
-            // sun) gets the larger of their power and the estimate's: both see
-            // the same distant radiance, and blobs of a textured sky carry only
-            // part of it (s0020: irradiance error 0.271 -> 0.086).
-            if anchored[o] && !anchored_near[o] && !by_radiance(o) {
-                let anchor = if anchor_radiance[o] > 0.0 {
-                    anchor_power[o].min(anchor_radiance[o] * area[o])
-                } else {
-                    anchor_power[o]
-                };
-                return anchor.max(from_estimate(o));
-            }
             if by_radiance(o) {
                 if est_area[o] > 0.0 {
                     est_power[o] / est_area[o] * core_area[o]
@@ -1213,8 +1118,6 @@ mod tests {
             power,
             radiance: 49.0,
             peak: 49.0,
-            spread: 0.0,
-            at_infinity: false,
             view: None,
         };
         let (_, rep) =
