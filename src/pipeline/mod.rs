@@ -119,8 +119,8 @@ impl RunParams {
             }
             *node = value;
         }
-        let mut out: RunParams = serde_json::from_value(tree)
-            .map_err(|e| Error::Invalid(format!("--set: {e}")))?;
+        let mut out: RunParams =
+            serde_json::from_value(tree).map_err(|e| Error::Invalid(format!("--set: {e}")))?;
         out.exr_compression = self.exr_compression;
         Ok(out)
     }
@@ -773,5 +773,32 @@ mod tests {
         });
         assert_eq!(made.load(Ordering::SeqCst), 2);
         assert_eq!(pairs.spent().1, 2);
+    }
+}
+
+#[cfg(test)]
+mod settings_tests {
+    use super::RunParams;
+
+    #[test]
+    fn a_setting_is_changed_by_its_path_and_a_wrong_path_is_named() {
+        let base = RunParams::default();
+        let p = base
+            .with_settings(&["fusion.max_angle_deg=5".into(), "flow.clip_code=245".into()])
+            .unwrap();
+        assert_eq!(p.fusion.max_angle_deg, 5.0);
+        assert_eq!(p.flow.clip_code, 245);
+        assert_eq!(p.fusion.margin_px, base.fusion.margin_px);
+        let e = base
+            .with_settings(&["fusion.no_such=1".into()])
+            .unwrap_err();
+        assert!(e.to_string().contains("no_such"), "{e}");
+        let e = base
+            .with_settings(&["fusion.max_angle_deg".into()])
+            .unwrap_err();
+        assert!(e.to_string().contains("KEY=VALUE"), "{e}");
+        assert!(base
+            .with_settings(&["flow.clip_code=\"x\"".into()])
+            .is_err());
     }
 }

@@ -326,7 +326,11 @@ pub fn run_corpus(
         if scenes.is_empty() {
             return Err(Error::Invalid(format!(
                 "no scene of the corpora is in the splits asked for ({})",
-                opts.splits.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ")
+                opts.splits
+                    .iter()
+                    .map(|s| s.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             )));
         }
     }
