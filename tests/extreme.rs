@@ -70,7 +70,7 @@ use lumiprobe::capture::merge::{merge, Exposure, MergeOptions, SATURATED};
 use lumiprobe::capture::ResponseCurve;
 use lumiprobe::eval;
 use lumiprobe::flow::method::{flow_frame, FlowMethodParams, Source};
-use lumiprobe::fusion::{clip_mask, components, fuse, FusionParams};
+use lumiprobe::fusion::{clip_mask, components, fuse, FusionParams, Measured};
 use lumiprobe::ibl::{
     prefilter_specular, prefilter_to_dir, FaceLayout, PrefilterOptions, Prefiltered, Sh9, ShWindow,
     SpecularOptions,
@@ -633,9 +633,13 @@ fn invalid_samples_are_rejected_or_repaired_and_said_so() {
         matches!(e, Error::Invalid(_)) && e.to_string().contains("probe_00"),
         "{e}"
     );
-    let e = fuse(sdr, &lin, &turned, 1.0, &FusionParams::default())
-        .err()
-        .expect("fusion accepted an estimate with NaN");
+    let e = fuse(
+        &Measured::new(sdr, &lin, 1.0),
+        &turned,
+        &FusionParams::default(),
+    )
+    .err()
+    .expect("fusion accepted an estimate with NaN");
     assert!(
         matches!(e, Error::Invalid(_)) && e.to_string().contains("estimate"),
         "{e}"
@@ -759,7 +763,7 @@ fn clipped_agreement(
         }
     }
     assert!(n > 0, "the frame clips nowhere");
-    let mask = clip_mask(sdr, 250, 3, 1);
+    let mask = clip_mask(sdr, &Default::default(), 3, 1);
     let (lab, regions) = components(&mask, w, h);
     let mut power = vec![(0.0f64, 0.0f64); regions];
     for (i, &l) in lab.iter().enumerate() {
@@ -1071,7 +1075,12 @@ fn tiny_and_odd_panoramas_work_or_fail_clearly() {
         ok_or_clear(&format!("{tag} flow"), r, w, h);
         let white = resp.decode(1.0) / 0.5;
         let r = catch(&format!("{tag} fusion"), || {
-            fuse(&sdr, &lin, &probe, white, &FusionParams::default()).map(|r| r.0)
+            fuse(
+                &Measured::new(&sdr, &lin, white),
+                &probe,
+                &FusionParams::default(),
+            )
+            .map(|r| r.0)
         });
         ok_or_clear(&format!("{tag} fusion"), r, w, h);
     }

@@ -71,6 +71,7 @@
 //! codes it had to move.
 
 use crate::error::{Error, Result};
+use crate::image::censor::{Censor, Reading};
 use crate::image::{HdrImage, SdrImage};
 use crate::tonemap::Response;
 use rayon::prelude::*;
@@ -104,15 +105,13 @@ pub fn hat_weight(z: u8) -> f64 {
     }
 }
 
-/// Codes at or above this are clipped: the sensor saturated, and JPEG ringing
-/// spreads a clipped 255 down by a few codes.
-pub const CLIP_CODE: u8 = 250;
 /// Codes at or above this are *possibly* clipped when some sample (any channel)
-/// of the same frame within one pixel is clipped: JPEG codes the channels jointly
-/// (YCbCr, chroma shared by 2×2 pixels) in 8×8 blocks, so next to a clipped area
-/// a saturated sample decodes as low as this, and a clipped channel distorts its
-/// neighbours' decoded values.
-pub const NEAR_CLIP_CODE: u8 = 230;
+/// of the same frame within one pixel is clipped: JPEG bleeding
+/// ([`crate::image::censor::BLEED_CODE`]).
+pub use crate::image::censor::BLEED_CODE as NEAR_CLIP_CODE;
+/// Codes at or above this are clipped ([`crate::image::censor`], which defines
+/// clipping for all of lumiprobe).
+pub use crate::image::censor::CLIP_CODE;
 /// An observation is noise, not a measurement, when its typical log error
 /// against a well-exposed frame of the same pixel exceeds this (a signal-to-noise
 /// ratio below about 2): the codes of such exposures are dominated by read noise,
@@ -167,7 +166,10 @@ impl<'a> Bracket<'a> {
             group[a..b].fill((a, b));
             a = b;
         }
-        let near_clip = sorted.par_iter().map(|f| near_clipped(f, width)).collect();
+        let near_clip = sorted
+            .par_iter()
+            .map(|f| Censor::default().near_clipped(f, width))
+            .collect();
         Bracket {
             frames: sorted,
             ln_t: t.iter().map(|v| v.ln()).collect(),
@@ -212,7 +214,7 @@ impl<'a> Bracket<'a> {
     #[inline]
     pub fn clipped(&self, j: usize, i: usize, c: usize) -> bool {
         let z = self.code(j, i, c);
-        z >= CLIP_CODE || (z >= NEAR_CLIP_CODE && self.near_clip[j][i])
+        Censor::default().reading(z, self.near_clip[j][i]) != Reading::Measured
     }
 
     /// The usable sorted frames `lo..hi` of pixel `i`, channel `c`: after the
@@ -311,35 +313,6 @@ impl<'a> Bracket<'a> {
         self.floor = [floors[0], floors[1], floors[2]];
         self.floor
     }
-}
-
-/// Per pixel of an RGB frame `w` wide: some sample within one pixel (3×3, any
-/// channel) is ≥ [`CLIP_CODE`].
-fn near_clipped(f: &[u8], w: usize) -> Vec<bool> {
-    let n = f.len() / 3;
-    if w == 0 || n == 0 {
-        return Vec::new();
-    }
-    let h = n / w;
-    let clipped: Vec<bool> = f
-        .chunks_exact(3)
-        .map(|q| q.iter().any(|&v| v >= CLIP_CODE))
-        .collect();
-    // Separable 3×3 dilation: rows, then columns.
-    let mut rows = vec![false; n];
-    for y in 0..h {
-        let r = &clipped[y * w..(y + 1) * w];
-        for x in 0..w {
-            rows[y * w + x] = r[x.saturating_sub(1)..(x + 2).min(w)].iter().any(|&b| b);
-        }
-    }
-    let mut out = vec![false; n];
-    for y in 0..h {
-        for x in 0..w {
-            out[y * w + x] = (y.saturating_sub(1)..(y + 2).min(h)).any(|yy| rows[yy * w + x]);
-        }
-    }
-    out
 }
 
 /// The hat weight restricted to the usable codes of a channel whose noise floor

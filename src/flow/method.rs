@@ -9,6 +9,7 @@ use super::dense::{
 use super::distant::{hold_distant_lights, restore_distant_lights, DistantLights, RotatedView};
 use super::graphcut::{argmin_labels, cheapest_label, optimize, GridEnergy, Optimizer, INFEASIBLE};
 use crate::error::{Error, Result};
+use crate::image::censor::Censor;
 use crate::image::{HdrImage, SdrImage};
 use crate::sphere::{sample_dir, sample_px, sample_px_by, uv_to_dir};
 use crate::tonemap::{to_gray8, EncodeLut, Response};
@@ -26,10 +27,12 @@ pub struct FlowMethodParams {
     pub sdr_cost: f32,
     /// Calibrated SDR label (radiometric fusion): where the frame did not clip it
     /// costs `sdr_cost` (set it low: the frame is a measurement there); where any
-    /// channel reached `clip_code` it is infeasible, so the probes fill it.
+    /// channel clipped (`censor`) it is infeasible, so the probes fill it.
     pub sdr_calibrated: bool,
-    /// 8-bit code from which an SDR channel counts as clipped.
-    pub clip_code: u8,
+    /// Which codes are clipped or bled ([`crate::image::censor`]): the one
+    /// setting of it for a run (the fusion on top reads it too).
+    #[serde(default)]
+    pub censor: Censor,
     /// Weight of the seam (smoothness) cost against the data cost.
     pub lambda: f32,
     /// Move-making algorithm.
@@ -139,7 +142,7 @@ impl Default for FlowMethodParams {
             flow: FlowParams::default(),
             sdr_cost: 500.0,
             sdr_calibrated: false,
-            clip_code: 250,
+            censor: Censor::default(),
             lambda: 1.0,
             optimizer: Optimizer::Expansion,
             max_cycles: 4,
@@ -353,7 +356,7 @@ fn fuse(
             )))
         }
         None => {
-            from_codes = sdr.data().iter().map(|&c| c >= p.clip_code).collect();
+            from_codes = sdr.data().iter().map(|&c| p.censor.clipped(c)).collect();
             &from_codes
         }
     };
@@ -427,7 +430,7 @@ fn fuse(
             .collect()
     };
     let mut flows: Vec<_> = flows.into_iter().collect::<Result<Vec<_>>>()?;
-    let clipped_px = clipped_pixels(sdr, p.clip_code);
+    let clipped_px = p.censor.clipped_pixels(sdr.data());
     // Where the frame clipped, a light the probes see in the same direction keeps
     // the rotation's alignment. At a reduced working size a light smaller than a
     // working pixel clips none of them whole: any clipped sample counts.
@@ -732,14 +735,6 @@ fn with_images<'a>(sources: &[RotatedSource], images: &[&'a HdrImage]) -> Vec<So
         .collect()
 }
 
-/// Pixels of the frame with a channel at or above the clip code.
-fn clipped_pixels(sdr: &SdrImage, clip_code: u8) -> Vec<bool> {
-    sdr.data()
-        .chunks_exact(3)
-        .map(|c| c.iter().any(|&v| v >= clip_code))
-        .collect()
-}
-
 /// An angle in degrees of longitude as whole pixels of a `w`-wide panorama
 /// (rounded up).
 fn degrees_to_px(deg: f32, w: usize) -> usize {
@@ -772,7 +767,7 @@ fn distant_settings(
     gain: f32,
 ) -> Option<DistantLights> {
     (p.distant_light_deg > 0.0 && gain.is_finite() && gain > 0.0).then(|| DistantLights {
-        clip_radiance: response.decode(p.clip_code as f32 / 255.0) / gain,
+        clip_radiance: response.decode(p.censor.clip_code as f32 / 255.0) / gain,
         ring_px: degrees_to_px(p.light_ring_deg, w),
         tolerance_rad: (p.distant_light_deg as f64).to_radians(),
     })
@@ -809,7 +804,7 @@ pub fn restore_warped_lights(
         )));
     }
     check_light_settings(p)?;
-    let clipped = clipped_pixels(sdr, p.clip_code);
+    let clipped = p.censor.clipped_pixels(sdr.data());
     let Some(settings) = distant_settings(p, w, response, gain) else {
         return Ok(vec![0; warped.len()]);
     };
@@ -896,7 +891,7 @@ pub fn flow_frame_scaled(
     // leaves such pixels all around it.
     let clip_flag = |i: usize| {
         let c = &codes[3 * i..3 * i + 3];
-        [0, 1, 2].map(|k| if c[k] >= p.clip_code { 1.0f32 } else { 0.0 })
+        [0, 1, 2].map(|k| if p.censor.clipped(c[k]) { 1.0f32 } else { 0.0 })
     };
     let small_clipped: Vec<bool> = area_resample(ws, hs, w, h, k, |x, y| {
         // Nearest pixel: a bilinear tap would lend a neighbour's flag.
@@ -997,7 +992,7 @@ pub fn flow_frame_scaled(
                     if near
                         .iter()
                         .any(|&q| labels[q] as usize != l && (labels[q] as usize) < n_src)
-                        && c.iter().all(|&v| v < p.clip_code)
+                        && !p.censor.any_clipped(c)
                     {
                         let mut best = (f32::INFINITY, l);
                         for (j, &q) in near.iter().enumerate() {

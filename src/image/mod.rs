@@ -1,5 +1,6 @@
 //! In-memory images: linear float HDR and 8-bit SDR, plus their file formats.
 
+pub mod censor;
 pub mod io;
 
 use crate::error::{Error, Result};

@@ -17,7 +17,7 @@ use crate::flow::method::{
     flow_frame_scaled, restore_warped_lights, FlowMethodParams, FlowReport, RotatedSource,
 };
 use crate::fusion::lights::{pair_lights, PairLights};
-use crate::fusion::{fuse_with_lights, FusionParams, FusionReport};
+use crate::fusion::{fuse_with_lights, FusionParams, FusionReport, Measured};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
@@ -92,7 +92,7 @@ impl RunParams {
 
 impl RunParams {
     /// These settings with `KEY=VALUE` assignments applied, keys being paths into
-    /// the settings as serialized (`fusion.max_angle_deg=5`, `flow.clip_code=245`)
+    /// the settings as serialized (`fusion.max_angle_deg=5`, `flow.censor.clip_code=245`)
     /// and values JSON (a bare word is taken as a string). For sweeping a constant
     /// over a corpus without a flag for each.
     pub fn with_settings(&self, assignments: &[String]) -> Result<RunParams> {
@@ -619,13 +619,12 @@ pub fn predict_frame(
         };
         base.flow.sdr_calibrated = true;
         base.flow.sdr_cost = params.fusion.sdr_label_cost;
-        base.flow.clip_code = params.fusion.clip_code;
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, access, &base)?;
         let white = scene
             .response
-            .decode(params.fusion.clip_code as f32 / 255.0)
+            .decode(params.flow.censor.clip_code as f32 / 255.0)
             / scene.path_gain;
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
@@ -655,8 +654,18 @@ pub fn predict_frame(
             frame: frame.pose,
             floor: white,
         });
-        let (img, mut rep) =
-            fuse_with_lights(sdr, lin, &est, white, &placed, sky.as_ref(), &params.fusion)?;
+        let (img, mut rep) = fuse_with_lights(
+            &Measured {
+                codes: sdr,
+                radiance: lin,
+                white,
+                censor: params.flow.censor,
+            },
+            &est,
+            &placed,
+            sky.as_ref(),
+            &params.fusion,
+        )?;
         rep.time_ms = t.elapsed().as_secs_f64() * 1e3;
         return Ok((img, wr, fr, Some(rep)));
     }
@@ -784,10 +793,13 @@ mod settings_tests {
     fn a_setting_is_changed_by_its_path_and_a_wrong_path_is_named() {
         let base = RunParams::default();
         let p = base
-            .with_settings(&["fusion.max_angle_deg=5".into(), "flow.clip_code=245".into()])
+            .with_settings(&[
+                "fusion.max_angle_deg=5".into(),
+                "flow.censor.clip_code=245".into(),
+            ])
             .unwrap();
         assert_eq!(p.fusion.max_angle_deg, 5.0);
-        assert_eq!(p.flow.clip_code, 245);
+        assert_eq!(p.flow.censor.clip_code, 245);
         assert_eq!(p.fusion.margin_px, base.fusion.margin_px);
         let e = base
             .with_settings(&["fusion.no_such=1".into()])
@@ -798,7 +810,7 @@ mod settings_tests {
             .unwrap_err();
         assert!(e.to_string().contains("KEY=VALUE"), "{e}");
         assert!(base
-            .with_settings(&["flow.clip_code=\"x\"".into()])
+            .with_settings(&["flow.censor.clip_code=\"x\"".into()])
             .is_err());
     }
 }

@@ -680,8 +680,8 @@ pub fn warp_frame(
     Ok((out, WarpReport { faces, timings }))
 }
 
-/// 8-bit code from which an SDR channel counts as clipped.
-pub const CLIP_CODE: u8 = 250;
+/// 8-bit code from which an SDR channel counts as clipped ([`crate::image::censor`]).
+pub use crate::image::censor::CLIP_CODE;
 
 /// Value of a frame face's mapping into the probe in direction `d` (frame axes),
 /// or `None` when the mapping does not reach that direction. The frame's own face
@@ -770,7 +770,8 @@ fn stitch(
                             };
                             // Near-white SDR codes are only a lower bound on radiance
                             // (the sensor clipped).
-                            let clipped = codes[3 * j..3 * j + 3].iter().any(|&c| c >= CLIP_CODE);
+                            let clipped = crate::image::censor::Censor::default()
+                                .any_clipped(&codes[3 * j..3 * j + 3]);
                             if clipped {
                                 // The true radiance is at least what the SDR shows; the
                                 // probe supplies the part above the white point.

@@ -1,0 +1,94 @@
+//! Phase 2 of the fusion: the power each clipped region receives — from the
+//! lights placed in 3-D that fall in it, else from the estimate's light
+//! attributed to it ([`super::regions`]).
+
+use super::regions::{Pixels, Region};
+use super::{FrameLight, FusionParams, Transfer};
+use crate::sphere::dir_to_uv;
+
+/// Assigns each placed light to the region its direction falls in, or to the
+/// region nearest in direction within `max_angle_deg`.
+pub(super) fn assign_placed<'v>(
+    px: &Pixels,
+    regions: &mut [Region<'v>],
+    placed: &'v [FrameLight<'v>],
+    p: &FusionParams,
+) {
+    let (w, h) = (px.w, px.h);
+    let cos_max = p.max_angle_deg.to_radians().cos();
+    for light in placed {
+        let (d, pw) = (light.dir, light.power);
+        if !(pw.is_finite() && pw > 0.0) || !d.is_finite() {
+            continue;
+        }
+        let (u, v) = dir_to_uv(d);
+        let (x, y) = (
+            ((u * w as f32) as usize).min(w - 1),
+            ((v * h as f32) as usize).min(h - 1),
+        );
+        let mut target = px.region(y * w + x);
+        if target.is_none() {
+            let dn = d.normalize_or_zero();
+            let mut best = cos_max;
+            for (b, r) in regions.iter().enumerate() {
+                let c = dn.dot(r.dir.normalize_or_zero());
+                if c >= best {
+                    best = c;
+                    target = Some(b);
+                }
+            }
+        }
+        let Some(o) = target else { continue };
+        let a = &mut regions[o].placed;
+        a.power += pw;
+        a.any = true;
+        if let Some(v) = &light.view {
+            if a.view.map_or(true, |(p0, _)| pw > p0) {
+                a.view = Some((pw, v));
+            }
+        }
+        if light.radiance.is_finite() {
+            a.radiance = a.radiance.max(light.radiance);
+        }
+        if light.peak.is_finite() {
+            a.peak = a.peak.max(light.peak);
+        }
+    }
+}
+
+/// True when `transfer` fills region `r` by radiance rather than by power.
+fn by_radiance(r: &Region, p: &FusionParams) -> bool {
+    match p.transfer {
+        Transfer::Radiance => true,
+        Transfer::Power => false,
+        Transfer::Auto => r.core_pixels >= p.resolved_px,
+    }
+}
+
+/// The power each region receives (`fill.target`).
+pub(super) fn target_power(regions: &mut [Region], p: &FusionParams) {
+    for r in regions.iter_mut() {
+        let (e, a) = (&r.estimate, &r.placed);
+        r.fill.target = if by_radiance(r, p) {
+            if e.area > 0.0 {
+                e.power / e.area * r.core_area
+            } else {
+                0.0
+            }
+        } else if a.any && a.radiance > 0.0 {
+            // No part of a source looks brighter than a probe saw it on average
+            // (radiance is invariant along rays), so the region can hold at most
+            // that radiance over its solid angle: this bounds the inverse-square
+            // extrapolation for a frame close to a large source (a window, a lamp
+            // shade overhead).
+            a.power.min(a.radiance * r.area)
+        } else if a.any {
+            a.power
+        } else {
+            // No pixel of the region is brighter than the brightest pixel of the
+            // light attributed to it: a small region (a speck near the pole)
+            // cannot hold a whole lamp's power.
+            e.power.min(e.peak * r.core_area)
+        };
+    }
+}

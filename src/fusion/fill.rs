@@ -1,0 +1,422 @@
+//! Phases 3-5 of the fusion: each clipped region's power spread over its pixels.
+//! A light carried through its surface, or a far source the probes see in the
+//! same directions, gives the pixels it covers their radiance; partially clipped
+//! pixels keep their measured channels; the rest of the region's power goes to
+//! the fully clipped pixels the carried light missed, shaped by the estimate.
+
+use super::edges::carry_with_sharp_edges;
+use super::lights::SkyView;
+use super::regions::{Kind, Pixels, Region};
+use super::{FusionParams, Measured};
+use crate::image::{luminance, HdrImage};
+use crate::sphere::sample_px;
+use std::collections::HashMap;
+
+/// Reprojected radiance above this multiple of the white point marks a light's
+/// core. Measured on kitchen and flat: 2, 4 and 8 give irradiance errors within
+/// 0.004 of each other.
+const LIGHT_CORE_RATIO: f32 = 2.0;
+
+/// What lights give the region pixels, looked up once.
+struct Lookups {
+    /// Far-source radiance per covered pixel.
+    sky: HashMap<usize, [f32; 3]>,
+    /// Radiance carried through a light's surface per pixel.
+    carried: HashMap<usize, [f32; 3]>,
+}
+
+/// The estimate's light moved onto pixel `i`'s region.
+fn shifted(estimate: &HdrImage, px: &Pixels, regions: &[Region], i: usize) -> [f32; 3] {
+    let o = px.lab[i] as usize;
+    let (x, y) = (i % px.w, i / px.w);
+    let s = regions[o].estimate.shift;
+    sample_px(estimate, x as f32 + 0.5 + s.0, y as f32 + 0.5 + s.1)
+}
+
+/// Phase 3: far sources (sky through a window) the probes see in the region's
+/// directions, for regions with no light carried through a surface; used where
+/// they cover at least `min_far_cover` of a region's fully clipped solid angle.
+/// Kept per covered pixel only: regions are a few percent of a panorama.
+fn far_sources(
+    px: &Pixels,
+    regions: &mut [Region],
+    sky: Option<&SkyView>,
+    p: &FusionParams,
+) -> HashMap<usize, [f32; 3]> {
+    let mut sky_rad = HashMap::new();
+    let Some(sky) = sky else {
+        return sky_rad;
+    };
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if regions[o].placed.view.is_some() || px.kinds[i] == Kind::Margin {
+            continue;
+        }
+        let r = sky.radiance(px.dir(i));
+        if let Some(r) = r {
+            sky_rad.insert(i, r);
+        }
+        if px.kinds[i] == Kind::Full {
+            let a = px.solid_angle(i);
+            regions[o].far.cover.1 += a;
+            if r.is_some() {
+                regions[o].far.cover.0 += a;
+            }
+        }
+    }
+    for r in regions.iter_mut() {
+        let c = r.far.cover;
+        r.far.ok = c.1 > 0.0 && c.0 >= p.min_far_cover * c.1;
+    }
+    // The median (by luminance) of each region's covered pixels: the least the
+    // others get (a mean would spread a sun's core over them).
+    let mut per: Vec<Vec<[f32; 3]>> = vec![Vec::new(); regions.len()];
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] == Kind::Full && regions[o].far.ok {
+            if let Some(&r) = sky_rad.get(&i) {
+                per[o].push(r);
+            }
+        }
+    }
+    for (o, v) in per.iter_mut().enumerate() {
+        if !v.is_empty() {
+            let mid = v.len() / 2;
+            v.select_nth_unstable_by(mid, |a, b| luminance(*a).total_cmp(&luminance(*b)));
+            regions[o].far.median = Some(v[mid]);
+        }
+    }
+    sky_rad
+}
+
+impl Lookups {
+    /// The radiance a region's light gives pixel `i`: through its surface, or
+    /// from the far source where the probes cover it. For fully clipped pixels
+    /// (`full`) a placed light with no surface keeps its power: the far source
+    /// then only shapes it ([`Lookups::shape`]).
+    fn light(&self, regions: &[Region], o: usize, i: usize, full: bool) -> Option<[f32; 3]> {
+        let r = &regions[o];
+        if r.placed.view.is_some() {
+            return self.carried.get(&i).copied();
+        }
+        if !r.far.ok || (r.placed.any && full) {
+            return None;
+        }
+        self.sky.get(&i).copied()
+    }
+
+    /// The shape of a region's fill at pixel `i`: a placed light with no surface
+    /// keeps its power, but a far source the probes see in the same direction
+    /// gives it its shape; else the shifted estimate.
+    fn shape(&self, estimate: &HdrImage, px: &Pixels, regions: &[Region], i: usize) -> [f32; 3] {
+        let r = &regions[px.lab[i] as usize];
+        match self.sky.get(&i).copied() {
+            Some(s) if r.far.ok && r.placed.any => s,
+            _ => shifted(estimate, px, regions, i),
+        }
+    }
+}
+
+/// The measured channel of partially clipped codes `c` with the highest radiance
+/// in `s` (0 when none is measured).
+fn brightest_measured(frame: &Measured, c: &[u8], s: [f32; 3]) -> usize {
+    (0..3)
+        .filter(|&k| !frame.censor.clipped(c[k]))
+        .max_by(|&a, &b| s[a].total_cmp(&s[b]))
+        .unwrap_or(0)
+}
+
+/// Phase 4a: per region and (clipped, measured) channel pair, the estimate's colour
+/// ratio: the median over the region's partially clipped pixels where the shifted
+/// estimate is bright in the clipped channel. A sunlit wall or a warm lamp has one
+/// colour, and an estimate a few pixels off mixes in its darker, differently
+/// coloured surroundings (a shadow lit by blue sky), which per-pixel ratios would
+/// copy. Measured on the evaluation scenes: flat +0.57 dB, log RMSE 0.0871 ->
+/// 0.0848; kitchen and outdoor unchanged to slightly better.
+fn colour_ratios(frame: &Measured, estimate: &HdrImage, px: &Pixels, regions: &mut [Region]) {
+    let white = frame.white;
+    let mut samples: Vec<[[Vec<f32>; 3]; 3]> =
+        (0..regions.len()).map(|_| Default::default()).collect();
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] != Kind::Partial {
+            continue;
+        }
+        let e = shifted(estimate, px, regions, i);
+        for k in 0..3 {
+            for r in 0..3 {
+                if k != r && e[k] > white && e[r] > 1e-12 && e[k].is_finite() {
+                    samples[o][k][r].push(e[k] / e[r]);
+                }
+            }
+        }
+    }
+    for (o, rr) in samples.iter_mut().enumerate() {
+        for k in 0..3 {
+            for r in 0..3 {
+                let v = &mut rr[k][r];
+                if !v.is_empty() {
+                    let mid = v.len() / 2;
+                    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+                    regions[o].fill.ratio[k][r] = Some(*m);
+                }
+            }
+        }
+    }
+}
+
+/// Phase 4b: partially clipped pixels. The measured channels are kept; each
+/// clipped channel follows the colour of the light carried there, or of the
+/// estimate (its region's ratio to the brightest measured channel), never below
+/// the clipped value. Margin pixels stay as measured.
+fn fill_partial(
+    frame: &Measured,
+    estimate: &HdrImage,
+    px: &Pixels,
+    regions: &mut [Region],
+    look: &Lookups,
+    out: &mut HdrImage,
+) {
+    let white = frame.white;
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] != Kind::Partial {
+            continue;
+        }
+        let (x, y) = (i % px.w, i / px.w);
+        let c = &frame.codes.data()[3 * i..3 * i + 3];
+        let s = frame.radiance.get(x, y);
+        let r = brightest_measured(frame, c, s);
+        let mut v = s;
+        // A light carried through its surface gives the clipped channels directly.
+        match look.light(regions, o, i, false) {
+            Some(rad) if rad[r] > 1e-12 => {
+                // Inside a light's core, JPEG's chroma subsampling bleeds the clipped
+                // channels into the others: a pixel coded (249, 255, 255) can be a
+                // lamp at 200x white. There, bled channels are not measurements and
+                // the probes' radiance is taken as it is; elsewhere (a light's glow)
+                // the clipped channels follow the probes' colour from the brightest
+                // measured one.
+                let core = luminance(rad) > LIGHT_CORE_RATIO * white;
+                for k in 0..3 {
+                    if core && frame.censor.bleeds(c[k]) {
+                        v[k] = rad[k].max(s[k]);
+                    } else if frame.censor.clipped(c[k]) {
+                        v[k] = (s[r] * rad[k] / rad[r]).max(s[k]);
+                    }
+                }
+            }
+            _ => {
+                let e = shifted(estimate, px, regions, i);
+                for k in 0..3 {
+                    if frame.censor.clipped(c[k]) && e[r] > 1e-12 && e[k].is_finite() {
+                        let q = regions[o].fill.ratio[k][r].unwrap_or(e[k] / e[r]);
+                        v[k] = (s[r] * q).max(s[k]);
+                    }
+                }
+            }
+        }
+        regions[o].fill.partial += (luminance(v) as f64 - white as f64).max(0.0) * px.sa[y] as f64;
+        out.set(x, y, v);
+    }
+}
+
+/// Phase 4c: a region with light left to place but no fully clipped pixel (a
+/// light every pixel of which kept a channel, e.g. through JPEG chroma bleeding)
+/// places it in its partially clipped pixels where the shifted estimate is bright
+/// (all of them if none is), so the light is not lost. Such a promoted pixel keeps
+/// its measured channels ([`keep_measured`]): a sunlit wall clipped in red only
+/// must not take the light's colour; the part of the light those channels would
+/// have held is dropped, since the frame measured that it is not there.
+fn promote(
+    frame: &Measured,
+    estimate: &HdrImage,
+    px: &mut Pixels,
+    regions: &mut [Region],
+    out: &HdrImage,
+) {
+    let white = frame.white;
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        match px.kinds[i] {
+            Kind::Full => regions[o].fill.has_full = true,
+            Kind::Partial if luminance(shifted(estimate, px, regions, i)) > white => {
+                regions[o].fill.has_bright_partial = true
+            }
+            _ => {}
+        }
+    }
+    for r in regions.iter_mut() {
+        r.fill.promote = !r.fill.has_full && r.fill.target > 1.05 * r.fill.partial;
+    }
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        let f = &regions[o].fill;
+        if px.kinds[i] == Kind::Partial
+            && f.promote
+            && (!f.has_bright_partial || luminance(shifted(estimate, px, regions, i)) > white)
+        {
+            px.kinds[i] = Kind::Full;
+            // What the pixel carried as a partial pixel (its value in `out`).
+            let v = out.get(i % px.w, i / px.w);
+            regions[o].fill.partial -=
+                (luminance(v) as f64 - white as f64).max(0.0) * px.solid_angle(i);
+        }
+        if px.kinds[i] == Kind::Full {
+            regions[o].fill.full_area += px.solid_angle(i);
+        }
+    }
+}
+
+/// A promoted pixel's channels that are measurements (below the bleed code) stay
+/// as measured. Only promoted pixels have such channels: the other fully clipped
+/// pixels clipped in every channel.
+fn keep_measured(frame: &Measured, v: &mut [f32; 3], i: usize) {
+    let w = frame.codes.width();
+    let s = frame.radiance.get(i % w, i / w);
+    for k in 0..3 {
+        if !frame.censor.bleeds(frame.codes.data()[3 * i + k]) {
+            v[k] = s[k];
+        }
+    }
+}
+
+/// Phase 5: fully clipped pixels. A light carried pixel by pixel gives the
+/// probes' radiance of the same surface point (never below the white point the
+/// frame saw it clip at); the pixels it does not cover receive the rest of the
+/// region's power: the white point plus the shape's excess, rescaled to that
+/// power, spread evenly when the shape misses them, and bounded by `missed_cap`.
+/// A region with no fully clipped pixel keeps what its partial pixels carry.
+fn fill_full(
+    frame: &Measured,
+    estimate: &HdrImage,
+    px: &Pixels,
+    regions: &mut [Region],
+    look: &Lookups,
+    out: &mut HdrImage,
+) {
+    let white = frame.white;
+    // The most radiance above white a pixel of a light carried through its surface
+    // can hold: the brightest a probe saw in the light or the lookup carries into
+    // the region (radiance is invariant along rays). Without that bound, a
+    // region's rest landing on a few missed pixels made them 20x too bright (flat,
+    // frame 16). No bound elsewhere: a far source's covered part need not hold its
+    // sun.
+    for r in regions.iter_mut() {
+        r.fill.missed_cap =
+            (r.placed.view.is_some() && r.placed.peak > 0.0).then_some(r.placed.peak);
+    }
+    let mut full_radiance: HashMap<usize, [f32; 3]> = HashMap::new();
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] != Kind::Full {
+            continue;
+        }
+        let a = px.solid_angle(i);
+        // A carried radiance at or below the white point contradicts the frame,
+        // which saw the pixel clip: the surface lookup missed the light there (a
+        // pose or placement error, larger for a frame far from the probes), so the
+        // pixel takes a share of the region's remaining power instead.
+        match look.light(regions, o, i, true) {
+            Some(r) if luminance(r) > white => {
+                full_radiance.insert(i, r);
+                let e = luminance(r) as f64 - white as f64;
+                let f = &mut regions[o].fill;
+                f.carried += e * a;
+                if let Some(c) = &mut f.missed_cap {
+                    *c = c.max(e);
+                }
+            }
+            _ => {
+                let e = look.shape(estimate, px, regions, i);
+                regions[o].fill.inside += (luminance(e) as f64 - white as f64).max(0.0) * a;
+            }
+        }
+    }
+    for r in regions.iter_mut() {
+        r.fill.rest = (r.fill.target - r.fill.partial - r.fill.carried).max(0.0);
+    }
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] != Kind::Full {
+            continue;
+        }
+        let (x, y) = (i % px.w, i / px.w);
+        let s = frame.radiance.get(x, y);
+        if let Some(&r) = full_radiance.get(&i) {
+            let lr = luminance(r).max(0.0);
+            let (colour, lc) = if lr > 1e-12 {
+                (r, lr)
+            } else {
+                (s, luminance(s).max(1e-12))
+            };
+            let target = lr.max(white);
+            let mut v = [0.0f32; 3];
+            for k in 0..3 {
+                v[k] = (colour[k] * target / lc).max(s[k]);
+            }
+            keep_measured(frame, &mut v, i);
+            out.set(x, y, v);
+            continue;
+        }
+        let reg = &regions[o];
+        let e = look.shape(estimate, px, regions, i);
+        let le = luminance(e).max(0.0);
+        let excess = (le - white).max(0.0) as f64;
+        let f = &reg.fill;
+        let add = if f.inside > 0.0 {
+            excess * f.rest / f.inside
+        } else if f.full_area > 0.0 {
+            f.rest / f.full_area
+        } else {
+            0.0
+        };
+        let target = white as f64 + f.missed_cap.map_or(add, |c| add.min(c));
+        // Colour from the estimate where it has one, else from the SDR pixel.
+        let colour = if le > 1e-12 { e } else { s };
+        let lc = luminance(colour).max(1e-12) as f64;
+        let mut v = [0.0f32; 3];
+        for k in 0..3 {
+            // Never below what the SDR frame measured (clipping only lowers values).
+            v[k] = ((colour[k] as f64 * target / lc) as f32).max(s[k]);
+        }
+        // A far source's pixels the probes do not cover are at least as bright as
+        // its median.
+        if let (Some(m), true) = (reg.far.median, reg.far.ok && !reg.placed.any) {
+            if luminance(m) > luminance(v) {
+                v = m;
+            }
+        }
+        keep_measured(frame, &mut v, i);
+        out.set(x, y, v);
+    }
+}
+
+/// Phases 3-5 over the regions, writing `out` (the linearised frame on entry);
+/// each region's `fill.filled` is the power above white it holds in the end.
+pub(super) fn fill(
+    frame: &Measured,
+    estimate: &HdrImage,
+    px: &mut Pixels,
+    regions: &mut [Region],
+    sky: Option<&SkyView>,
+    p: &FusionParams,
+    out: &mut HdrImage,
+) {
+    let sky_rad = far_sources(px, regions, sky, p);
+    let look = Lookups {
+        sky: sky_rad,
+        carried: carry_with_sharp_edges(px, regions, frame.white),
+    };
+    colour_ratios(frame, estimate, px, regions);
+    fill_partial(frame, estimate, px, regions, &look, out);
+    promote(frame, estimate, px, regions, out);
+    fill_full(frame, estimate, px, regions, &look, out);
+    for (i, &l) in px.lab.iter().enumerate() {
+        if l != u32::MAX {
+            regions[l as usize].fill.filled +=
+                (luminance(out.get(i % px.w, i / px.w)) as f64 - frame.white as f64).max(0.0)
+                    * px.solid_angle(i);
+        }
+    }
+}

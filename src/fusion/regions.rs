@@ -1,0 +1,288 @@
+//! Phase 1 of the fusion: the frame's clipped regions, what the frame measured at
+//! each of their pixels, and the estimate's light attributed to each region.
+
+use super::lights::LightView;
+use super::{clip_mask, components, FusionParams, Measured};
+use crate::image::{luminance, HdrImage};
+use crate::sphere::{pixel_to_dir, row_solid_angles};
+use glam::Vec3;
+
+/// What the frame measured at a pixel of a clipped region: every channel clipped
+/// (nothing measured: the light is placed here), some channels clipped (the others
+/// are measurements), or none (a margin pixel, kept as measured).
+#[derive(Clone, Copy, PartialEq, Debug)]
+pub(super) enum Kind {
+    Full,
+    Partial,
+    Margin,
+}
+
+/// The frame's pixels as the fusion sees them.
+pub(super) struct Pixels {
+    pub w: usize,
+    pub h: usize,
+    /// Region of each pixel (`u32::MAX`: measured, outside every region).
+    pub lab: Vec<u32>,
+    /// Clipped pixels of regions of at least `min_core_px`, before the margin.
+    pub core: Vec<bool>,
+    /// `core` grown by the margin: the pixels the fusion may change.
+    pub mask: Vec<bool>,
+    /// What the frame measured at each pixel (promoted pixels become `Full`).
+    pub kinds: Vec<Kind>,
+    /// Solid angle of a pixel of each row.
+    pub sa: Vec<f32>,
+}
+
+impl Pixels {
+    /// Direction of pixel `i` (the frame's camera axes).
+    pub fn dir(&self, i: usize) -> Vec3 {
+        pixel_to_dir(i % self.w, i / self.w, self.w, self.h)
+    }
+
+    /// Region of pixel `i`, if any.
+    #[inline]
+    pub fn region(&self, i: usize) -> Option<usize> {
+        (self.lab[i] != u32::MAX).then_some(self.lab[i] as usize)
+    }
+
+    /// Solid angle of pixel `i`.
+    #[inline]
+    pub fn solid_angle(&self, i: usize) -> f64 {
+        self.sa[i / self.w] as f64
+    }
+}
+
+/// The estimate's light above the white point attributed to one region.
+#[derive(Clone, Debug, Default)]
+pub(super) struct EstimateLight {
+    /// Power (luminance above the white point x solid angle).
+    pub power: f64,
+    /// Brightest luminance above the white point.
+    pub peak: f64,
+    /// Solid angle.
+    pub area: f64,
+    /// How far the estimate has the light from the region, in pixels (columns,
+    /// rows): shape against shape, not power-weighted (a lamp brighter on one side
+    /// would move though the estimate had it in place).
+    pub shift: (f32, f32),
+}
+
+/// Lights placed in 3-D ([`super::lights`]) that fall in one region.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Placed<'v> {
+    /// True when some placed light falls in the region.
+    pub any: bool,
+    /// Their power at the frame.
+    pub power: f64,
+    /// Largest mean radiance above the white point a probe saw in them.
+    pub radiance: f64,
+    /// Brightest radiance above the white point a probe saw in them.
+    pub peak: f64,
+    /// The strongest of them that can be carried pixel by pixel through its
+    /// surface, with its power.
+    pub view: Option<(f64, &'v LightView<'v>)>,
+}
+
+/// Far sources the other probes see in the region's directions (sky through a
+/// window).
+#[derive(Clone, Debug, Default)]
+pub(super) struct Far {
+    /// Solid angle of fully clipped pixels the lookup covers, and of all of them.
+    pub cover: (f64, f64),
+    /// True when the lookup covers enough of the region to be used.
+    pub ok: bool,
+    /// Median (by luminance) of the covered pixels' radiance.
+    pub median: Option<[f32; 3]>,
+}
+
+/// How the region's light is spread over its pixels.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Fill {
+    /// Power the region receives.
+    pub target: f64,
+    /// Per (clipped channel, measured channel): the estimate's colour ratio.
+    pub ratio: [[Option<f32>; 3]; 3],
+    /// Power above white in its partially clipped pixels.
+    pub partial: f64,
+    /// Some pixel clipped in every channel.
+    pub has_full: bool,
+    /// Some partially clipped pixel where the shifted estimate is above white.
+    pub has_bright_partial: bool,
+    /// Partial pixels are promoted to fully clipped (the region had none).
+    pub promote: bool,
+    /// Solid angle of its fully clipped pixels.
+    pub full_area: f64,
+    /// Shifted estimate's excess over its fully clipped pixels not carried.
+    pub inside: f64,
+    /// Power carried pixel by pixel into fully clipped pixels.
+    pub carried: f64,
+    /// Most radiance above white a pixel not carried may hold.
+    pub missed_cap: Option<f64>,
+    /// Power left for the pixels not carried.
+    pub rest: f64,
+    /// Power above the white point it holds in the end.
+    pub filled: f64,
+}
+
+/// One clipped region of the frame (a connected set of clipped pixels, grown by
+/// the margin) and everything the fusion learns about it, phase by phase.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Region<'v> {
+    /// Pixels.
+    pub pixels: usize,
+    /// Solid angle.
+    pub area: f64,
+    /// Solid angle of its clipped pixels (before the margin).
+    pub core_area: f64,
+    /// Its clipped pixels (before the margin).
+    pub core_pixels: usize,
+    /// Column of its first pixel: centroids are taken relative to it, so a region
+    /// across the seam averages correctly.
+    pub reference: usize,
+    /// Centroid (columns relative to `reference`, rows).
+    pub centroid: (f64, f64),
+    /// Solid-angle-weighted sum of its directions.
+    pub dir: Vec3,
+    /// Phase 1: the estimate's light.
+    pub estimate: EstimateLight,
+    /// Phase 2: lights placed in 3-D.
+    pub placed: Placed<'v>,
+    /// Phase 3: far sources.
+    pub far: Far,
+    /// Phases 2-5: the fill.
+    pub fill: Fill,
+}
+
+impl Region<'_> {
+    /// Centre (column, row) in pixels of a `w`-wide frame.
+    pub fn centre(&self, w: usize) -> (f32, f32) {
+        (
+            ((self.centroid.0 + self.reference as f64).rem_euclid(w as f64)) as f32,
+            self.centroid.1 as f32,
+        )
+    }
+}
+
+/// Signed column offset of `x` from `r` in a `w`-wide panorama (shortest way).
+fn rel_x(x: usize, r: usize, w: usize) -> f64 {
+    let d = (x as i64 - r as i64).rem_euclid(w as i64);
+    (if d > (w / 2) as i64 { d - w as i64 } else { d }) as f64
+}
+
+/// The frame's clipped regions and their pixels, and the estimate's light
+/// attributed to each: each connected region of the estimate above the white
+/// point goes to the clipped region nearest in direction, within
+/// `max_angle_deg`.
+pub(super) fn find<'v>(
+    frame: &Measured,
+    estimate: &HdrImage,
+    p: &FusionParams,
+) -> (Pixels, Vec<Region<'v>>) {
+    let (sdr, white) = (frame.codes, frame.white);
+    let (w, h) = (sdr.width(), sdr.height());
+    let core = clip_mask(sdr, &frame.censor, p.min_core_px, 0);
+    let mask = clip_mask(sdr, &frame.censor, p.min_core_px, p.margin_px);
+    let (lab, n) = components(&mask, w, h);
+    let kinds: Vec<Kind> = sdr
+        .data()
+        .chunks_exact(3)
+        .map(|c| match frame.censor.clipped_channels(c) {
+            3 => Kind::Full,
+            0 => Kind::Margin,
+            _ => Kind::Partial,
+        })
+        .collect();
+    let px = Pixels {
+        w,
+        h,
+        lab,
+        core,
+        mask,
+        kinds,
+        sa: row_solid_angles(w, h),
+    };
+    let mut regions: Vec<Region> = vec![Region::default(); n];
+    let mut has_reference = vec![false; n];
+    for (i, &l) in px.lab.iter().enumerate() {
+        if l != u32::MAX && !has_reference[l as usize] {
+            has_reference[l as usize] = true;
+            regions[l as usize].reference = i % w;
+        }
+    }
+    let bright: Vec<bool> = (0..w * h)
+        .map(|i| luminance(estimate.get(i % w, i / w)) > white)
+        .collect();
+    let (elab, en) = components(&bright, w, h);
+    let mut light_dir = vec![Vec3::ZERO; en];
+    for i in 0..w * h {
+        if let Some(o) = px.region(i) {
+            regions[o].dir += px.dir(i) * px.sa[i / w];
+        }
+        if elab[i] != u32::MAX {
+            let m = (luminance(estimate.get(i % w, i / w)) - white).max(0.0) * px.sa[i / w];
+            light_dir[elab[i] as usize] += px.dir(i) * m;
+        }
+    }
+    let cos_max = p.max_angle_deg.to_radians().cos();
+    let light_owner: Vec<u32> = light_dir
+        .iter()
+        .map(|ld| {
+            let ld = ld.normalize_or_zero();
+            let mut best = (u32::MAX, cos_max);
+            for (b, r) in regions.iter().enumerate() {
+                let c = ld.dot(r.dir.normalize_or_zero());
+                if c >= best.1 {
+                    best = (b as u32, c);
+                }
+            }
+            best.0
+        })
+        .collect();
+    // Centroids of the estimate's attributed pixels (all above the white point).
+    let mut est_c = vec![(0.0f64, 0.0f64, 0usize); n];
+    for i in 0..w * h {
+        let (x, y) = (i % w, i / w);
+        let owner = if elab[i] != u32::MAX {
+            light_owner[elab[i] as usize]
+        } else {
+            u32::MAX
+        };
+        if owner != u32::MAX {
+            let o = owner as usize;
+            let r = &mut regions[o];
+            let l = luminance(estimate.get(x, y)) as f64;
+            let sa = px.sa[y] as f64;
+            r.estimate.power += (l - white as f64).max(0.0) * sa;
+            r.estimate.peak = r.estimate.peak.max(l - white as f64);
+            r.estimate.area += sa;
+            if l > white as f64 {
+                est_c[o].2 += 1;
+                est_c[o].0 += rel_x(x, r.reference, w);
+                est_c[o].1 += y as f64;
+            }
+        }
+        if let Some(o) = px.region(i) {
+            let r = &mut regions[o];
+            r.area += px.sa[y] as f64;
+            if px.core[i] {
+                r.core_area += px.sa[y] as f64;
+                r.core_pixels += 1;
+            }
+            r.pixels += 1;
+            r.centroid.0 += rel_x(x, r.reference, w);
+            r.centroid.1 += y as f64;
+        }
+    }
+    for (r, &(ex, ey, en)) in regions.iter_mut().zip(&est_c) {
+        let c = r.pixels as f64;
+        if en > 0 && r.pixels > 0 {
+            let e = en as f64;
+            r.estimate.shift = (
+                (ex / e - r.centroid.0 / c) as f32,
+                (ey / e - r.centroid.1 / c) as f32,
+            );
+        }
+        r.centroid = (r.centroid.0 / c.max(1.0), r.centroid.1 / c.max(1.0));
+    }
+    (px, regions)
+}
