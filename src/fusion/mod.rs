@@ -21,10 +21,12 @@
 mod budget;
 mod edges;
 mod fill;
+mod interval;
 pub mod lights;
 mod regions;
 
 pub use edges::{has_plateau, sharpen_edge};
+pub use interval::IrradianceInterval;
 
 use crate::error::{Error, Result};
 use crate::image::censor::Censor;
@@ -208,6 +210,10 @@ pub struct FusionReport {
     /// Time of the fusion itself (light placement included), in milliseconds.
     #[serde(default)]
     pub time_ms: f64,
+    /// The frame's irradiance (averaged over orientations): what the frame alone
+    /// shows, the prediction's, and the most the evidence allows.
+    #[serde(default)]
+    pub irradiance: IrradianceInterval,
 }
 
 /// Clipped pixels (some channel clipped by `censor`) in regions of at least
@@ -349,6 +355,7 @@ pub fn fuse_with_lights(
     };
     report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();
     feather(&mut out, estimate, &px.mask, w, h, p.feather_px);
+    report.irradiance = interval::irradiance_interval(&out, frame.radiance, &px, &regions);
     report.sdr_fraction = px.mask.iter().filter(|&&m| !m).count() as f32 / (w * h).max(1) as f32;
     Ok((out, report))
 }

@@ -766,3 +766,51 @@ fn a_window_region_takes_the_sky_the_other_probes_see_in_its_directions() {
         log_err(&out)
     );
 }
+
+#[test]
+fn the_irradiance_interval_runs_from_the_frame_alone_to_the_evidence_widened() {
+    let (w, h) = (128, 64);
+    let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
+    // The estimate has the lamp where the frame clipped, at 500x white.
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (38..=42).contains(&x) && (18..=22).contains(&y) {
+            [500.0, 500.0, 500.0]
+        } else {
+            [0.2, 0.2, 0.2]
+        }
+    });
+    let p = FusionParams {
+        margin_px: 0,
+        ..FusionParams::default()
+    };
+    let (out, rep) = fuse(&Measured::new(&sdr, &lin, 1.0), &est, &p).unwrap();
+    let quarter_power = |img: &HdrImage| {
+        let sa = row_solid_angles(w, h);
+        (0..w * h)
+            .map(|i| luminance(img.get(i % w, i / w)) as f64 * sa[i / w] as f64)
+            .sum::<f64>()
+            / 4.0
+    };
+    let iv = rep.irradiance;
+    assert!(
+        (iv.lower - quarter_power(&lin)).abs() < 1e-6 * iv.lower,
+        "{iv:?}"
+    );
+    assert!(
+        (iv.estimate - quarter_power(&out)).abs() < 1e-6 * iv.estimate,
+        "{iv:?}"
+    );
+    // The lamp adds light; the upper end widens what the evidence adds.
+    assert!(iv.lower < iv.estimate && iv.estimate < iv.upper, "{iv:?}");
+    let added = iv.estimate - iv.lower;
+    assert!(iv.upper - iv.lower > 1.5 * added, "{iv:?}");
+    // A frame with nothing clipped has a point interval.
+    let flat = SdrImage::from_vec(w, h, vec![100u8; 3 * w * h]).unwrap();
+    let dim = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+    let (_, rep) = fuse(&Measured::new(&flat, &dim, 1.0), &est, &p).unwrap();
+    let iv = rep.irradiance;
+    assert!(
+        iv.upper - iv.lower < 1e-9 && (iv.estimate - iv.lower).abs() < 1e-9,
+        "{iv:?}"
+    );
+}
