@@ -814,3 +814,245 @@ fn the_irradiance_interval_runs_from_the_frame_alone_to_the_evidence_widened() {
         "{iv:?}"
     );
 }
+
+/// A room whose ceiling (z = 2.6) holds a small lamp (0.2 m square, centred at
+/// (1.0, 0.5), 500x the ceiling) when `lamp` is true; the rest is dim.
+fn lamp_room(from: glam::Vec3, d: glam::Vec3, lamp: bool) -> [f32; 3] {
+    if d.z <= 1e-4 {
+        return [0.3, 0.3, 0.3];
+    }
+    let x = from + d * ((2.6 - from.z) / d.z);
+    if lamp && (x.x - 1.0).abs() < 0.1 && (x.y - 0.5).abs() < 0.1 {
+        return [500.0, 500.0, 500.0];
+    }
+    [0.8, 0.8, 0.8]
+}
+
+/// The panorama an upright camera at `at` takes of [`lamp_room`], each pixel the
+/// mean over its area (4 x 4 samples).
+fn render_lamp_room(at: glam::Vec3, lamp: bool, w: usize, h: usize) -> HdrImage {
+    let pose = lights::tests::upright(at);
+    HdrImage::from_fn(w, h, |x, y| {
+        let mut acc = [0.0f32; 3];
+        for k in 0..16 {
+            let u = (x as f32 + (k % 4) as f32 * 0.25 + 0.125) / w as f32;
+            let v = (y as f32 + (k / 4) as f32 * 0.25 + 0.125) / h as f32;
+            let c = lamp_room(
+                at,
+                pose.world_from_camera * crate::sphere::uv_to_dir(u, v),
+                lamp,
+            );
+            for j in 0..3 {
+                acc[j] += c[j] / 16.0;
+            }
+        }
+        acc
+    })
+}
+
+#[test]
+fn a_light_only_one_probe_sees_is_not_triangulated_and_keeps_the_estimates_power() {
+    use lights::lights_at_frame;
+    use lights::tests::upright;
+    let (w, h) = (256, 128);
+    let white = 2.0f32;
+    let (pa, pb) = (
+        glam::Vec3::new(0.0, 0.0, 1.5),
+        glam::Vec3::new(2.2, 0.3, 1.5),
+    );
+    // Probe B's view of the lamp is blocked.
+    let (ia, ib) = (
+        render_lamp_room(pa, true, w, h),
+        render_lamp_room(pb, false, w, h),
+    );
+    let at = glam::Vec3::new(0.4, 0.2, 1.5);
+    let truth = render_lamp_room(at, true, w, h);
+    let (codes, lin) = sdr_of(&truth, white);
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let p = FusionParams::default();
+    let frame = upright(at);
+    let (a, b) = (upright(pa), upright(pb));
+    let placed = lights_at_frame((&ia, &a), (&ib, &b), &frame, white, &p);
+    assert!(
+        placed.is_empty(),
+        "{} lights placed from one probe",
+        placed.len()
+    );
+    // The estimate: probe A as it is (same orientation as the frame).
+    let (out, rep) =
+        fuse_with_lights(&Measured::new(&sdr, &lin, white), &ia, &placed, None, &p).unwrap();
+    let lamp = rep
+        .blobs
+        .iter()
+        .max_by(|a, b| a.filled_power.total_cmp(&b.filled_power))
+        .unwrap();
+    assert!(!lamp.placed);
+    assert!(
+        (lamp.filled_power / lamp.estimate_power - 1.0).abs() < 0.05,
+        "{lamp:?}"
+    );
+    // The frame is nearer the lamp than the probe: the truth is brighter than
+    // the prediction, and the interval holds it.
+    let want = power_above(&truth, white);
+    let got = power_above(&out, white);
+    assert!(got < want, "{got} vs {want}");
+    let t = 0.25 * {
+        let sa = row_solid_angles(w, h);
+        (0..w * h)
+            .map(|i| luminance(truth.get(i % w, i / w)) as f64 * sa[i / w] as f64)
+            .sum::<f64>()
+    };
+    let iv = rep.irradiance;
+    assert!(iv.lower <= t && t <= iv.upper, "truth {t} outside {iv:?}");
+}
+
+#[test]
+fn a_clipped_white_wall_with_no_light_behind_it_gets_no_light() {
+    let (w, h) = (128, 64);
+    // A wall just over the white point fills a large clipped region.
+    let wall = |x: usize, y: usize| (30..70).contains(&x) && (20..44).contains(&y);
+    let mut codes = vec![120u8; 3 * w * h];
+    let lin = HdrImage::from_fn(w, h, |x, y| if wall(x, y) { [1.0; 3] } else { [0.3; 3] });
+    for i in 0..w * h {
+        if wall(i % w, i / w) {
+            codes[3 * i..3 * i + 3].copy_from_slice(&[255, 255, 255]);
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    // The estimate sees the same wall at 1.3x white, and a lamp 90 degrees away.
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if wall(x, y) {
+            [1.3; 3]
+        } else if (100..103).contains(&x) && (30..33).contains(&y) {
+            [1000.0; 3]
+        } else {
+            [0.3; 3]
+        }
+    });
+    let (out, rep) = fuse(
+        &Measured::new(&sdr, &lin, 1.0),
+        &est,
+        &FusionParams::default(),
+    )
+    .unwrap();
+    assert_eq!(rep.blobs.len(), 1);
+    let peak = (0..w * h)
+        .filter(|&i| wall(i % w, i / w))
+        .map(|i| luminance(out.get(i % w, i / w)))
+        .fold(0.0f32, f32::max);
+    assert!(peak < 1.35, "the wall got {peak}x white");
+    let (filled, est_power) = (rep.blobs[0].filled_power, rep.blobs[0].estimate_power);
+    assert!(
+        (filled / est_power - 1.0).abs() < 0.05,
+        "{filled} vs {est_power}"
+    );
+    // The lamp outside every clipped region is not moved in.
+    assert!(power_above(&out, 1.0) < 1.05 * est_power);
+}
+
+#[test]
+fn a_sun_across_the_seam_keeps_its_power_on_both_sides() {
+    let (w, h) = (256, 128);
+    let sun = |x: usize, y: usize| (x >= w - 2 || x < 2) && (40..44).contains(&y);
+    let mut codes = vec![90u8; 3 * w * h];
+    let lin = HdrImage::from_fn(w, h, |x, y| if sun(x, y) { [1.0; 3] } else { [0.2; 3] });
+    for i in 0..w * h {
+        if sun(i % w, i / w) {
+            codes[3 * i..3 * i + 3].copy_from_slice(&[255, 255, 255]);
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    // The estimate has the sun at 1e5x white one pixel to the right, still
+    // across the seam.
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (x >= w - 1 || x < 3) && (40..44).contains(&y) {
+            [1e5; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let p = FusionParams {
+        margin_px: 0,
+        ..FusionParams::default()
+    };
+    let (out, rep) = fuse(&Measured::new(&sdr, &lin, 1.0), &est, &p).unwrap();
+    assert_eq!(rep.blobs.len(), 1, "one region across the seam");
+    let b = &rep.blobs[0];
+    let centre = b.centre.0;
+    assert!(centre < 1.0 || centre > w as f32 - 1.0, "centre {centre}");
+    assert!(b.shift_px.0.abs() < 1.5, "shift {:?}", b.shift_px);
+    assert!(
+        (b.filled_power / b.estimate_power - 1.0).abs() < 0.05,
+        "{b:?}"
+    );
+    let side =
+        |xs: std::ops::Range<usize>| -> f64 { xs.map(|x| luminance(out.get(x, 41)) as f64).sum() };
+    let (left, right) = (side(0..2), side(w - 2..w));
+    assert!(left > 1e4 && right > 1e4, "{left} {right}");
+    assert!(out.data().iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
+    // Ten frames: the lamp (placed from two probes, power 2) hides behind an
+    // edge for the first five; the frame sees a window 90 degrees away all along.
+    let (w, h) = (128, 64);
+    let lamp_px = (40usize, 20usize);
+    let window = |x: usize, y: usize| (72..78).contains(&x) && (28..34).contains(&y);
+    let lamp_dir = crate::sphere::pixel_to_dir(lamp_px.0, lamp_px.1, w, h);
+    let light = [FrameLight {
+        dir: lamp_dir,
+        power: 2.0,
+        radiance: 0.0,
+        peak: 0.0,
+        view: None,
+    }];
+    let mut added = Vec::new();
+    for f in 0..10 {
+        let visible = f >= 5;
+        let (mut sdr, mut lin) = frame_with_lamp(w, h, lamp_px, 1);
+        if !visible {
+            // Hidden: the lamp's pixels measured as the background.
+            let mut codes = sdr.data().to_vec();
+            for y in lamp_px.1 - 1..=lamp_px.1 + 1 {
+                for x in lamp_px.0 - 1..=lamp_px.0 + 1 {
+                    codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[100; 3]);
+                    lin.set(x, y, [0.2; 3]);
+                }
+            }
+            sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        }
+        let mut codes = sdr.data().to_vec();
+        for i in 0..w * h {
+            if window(i % w, i / w) {
+                codes[3 * i..3 * i + 3].copy_from_slice(&[255; 3]);
+                lin.set(i % w, i / w, [1.0; 3]);
+            }
+        }
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        let est = HdrImage::from_fn(w, h, |x, y| if window(x, y) { [3.0; 3] } else { [0.2; 3] });
+        let (out, _) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &light,
+            None,
+            &FusionParams::default(),
+        )
+        .unwrap();
+        added.push(power_above(&out, 1.0));
+    }
+    let window_power = added[0];
+    for (f, &a) in added.iter().enumerate() {
+        if f < 5 {
+            assert!(
+                (a - window_power).abs() < 1e-6 * window_power,
+                "frame {f}: {a} vs {window_power}"
+            );
+        } else {
+            assert!(
+                (a - window_power - 2.0).abs() < 0.05 * 2.0,
+                "frame {f}: {a}"
+            );
+        }
+    }
+}
