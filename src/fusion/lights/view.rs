@@ -1,0 +1,123 @@
+//! A placed light and far sources as one frame sees them.
+
+use super::{Surface, View};
+use crate::image::{luminance, HdrImage};
+use crate::scene::Pose;
+use crate::sphere::sample_dir;
+use glam::Vec3;
+
+/// A placed light as a frame sees it through its [`Surface`], pixel by pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct LightView<'a> {
+    /// The surface the light lies on.
+    pub surface: Surface,
+    /// The two probes that saw it.
+    pub probes: [View<'a>; 2],
+    /// The frame's pose.
+    pub frame: Pose,
+}
+
+impl LightView<'_> {
+    /// Radiance the frame sees in direction `d` (its camera axes) through the
+    /// light's surface ([`LightView::sample`] without the magnification).
+    pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        self.sample(d, 1).map(|(r, _)| r)
+    }
+
+    /// What the frame (`frame_width` pixels wide) sees in direction `d` (its camera
+    /// axes) through the light's surface, and how sharply.
+    ///
+    /// The radiance is the probes' samples of the same surface point, the probe
+    /// that sees it from nearest the frame's viewpoint weighing most (a window's
+    /// sky or a glossy patch changes with the viewpoint).
+    ///
+    /// The magnification is how many frame pixels one pixel of that probe spans
+    /// along a line at the point: the ratio of the two views' linear angular
+    /// scales of a small patch there (distance ratio times the square root of the
+    /// foreshortening ratio), times the ratio of the panoramas' widths. Above 1,
+    /// the probe's samples are that many times blurrier than the frame's pixels.
+    /// For sources at infinity only the widths count.
+    ///
+    /// `None` when the ray misses the surface.
+    pub fn sample(&self, d: Vec3, frame_width: usize) -> Option<([f32; 3], f32)> {
+        let dw = self.frame.world_from_camera * d;
+        let widths = |img: &HdrImage| frame_width as f32 / img.width().max(1) as f32;
+        let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
+        let mut add = |img: &HdrImage, pose: &Pose, v: Vec3, wt: f64| {
+            let c = sample_dir(img, pose.world_from_camera.transpose() * v);
+            for k in 0..3 {
+                sum[k] += wt * c[k] as f64;
+            }
+            norm += wt;
+        };
+        let magnification = match self.surface {
+            // The same direction from both: the nearer probe weighs more.
+            Surface::Infinity => {
+                for (img, pose) in self.probes {
+                    let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
+                    add(img, pose, dw, wt);
+                }
+                widths(self.probes[0].0)
+            }
+            Surface::Plane { normal, .. } => {
+                let (x, t) = self.surface.meet(self.frame.position, dw)?;
+                let along = normal.dot(dw).abs();
+                // (angle between the probe's and the frame's rays, magnification)
+                let mut nearest: Option<(f32, f32)> = None;
+                for (img, pose) in self.probes {
+                    let v = x - pose.position;
+                    let dp = v.length();
+                    if !(dp > 0.0 && dp.is_finite()) {
+                        return None;
+                    }
+                    let u = v / dp;
+                    let angle = u.dot(dw).clamp(-1.0, 1.0).acos();
+                    add(img, pose, u, 1.0 / (angle as f64 + 0.02));
+                    let cos_p = (normal.dot(v) / dp).abs().max(1e-3);
+                    let m = dp / t * (along / cos_p).sqrt() * widths(img);
+                    if nearest.map_or(true, |(a, _)| angle < a) {
+                        nearest = Some((angle, m));
+                    }
+                }
+                nearest?.1
+            }
+        };
+        (norm > 0.0).then(|| (sum.map(|s| (s / norm) as f32), magnification))
+    }
+}
+
+/// Bright sources far away (the sky and the sun through a window, and their mirror
+/// images in glossy floors), seen by the probes in the same direction as by the
+/// frame: radiance at infinity depends only on the direction.
+#[derive(Clone, Debug)]
+pub struct SkyView<'a> {
+    /// Probes that may see the same far source.
+    pub probes: Vec<View<'a>>,
+    /// The frame's pose.
+    pub frame: Pose,
+    /// Radiance (luminance) a probe's sample must exceed to count: a probe that sees
+    /// a wall in that direction, not the far source, says nothing about it.
+    pub floor: f32,
+}
+
+impl SkyView<'_> {
+    /// Radiance in direction `d` (the frame's camera axes) from the probes that see
+    /// something brighter than `floor` there, nearer probes weighing more; `None`
+    /// when none does.
+    pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        let dw = self.frame.world_from_camera * d;
+        let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
+        for (img, pose) in &self.probes {
+            let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
+            if luminance(c) <= self.floor {
+                continue;
+            }
+            let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
+            for k in 0..3 {
+                sum[k] += wt * c[k] as f64;
+            }
+            norm += wt;
+        }
+        (norm > 0.0).then(|| sum.map(|s| (s / norm) as f32))
+    }
+}
