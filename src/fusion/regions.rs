@@ -120,6 +120,11 @@ pub(super) struct Fill {
     pub missed_cap: Option<f64>,
     /// Power left for the pixels not carried.
     pub rest: f64,
+    /// Solid angle of its fully clipped pixels not carried.
+    pub missed_area: f64,
+    /// Factor on the carried pixels' excess over white: above 1 when every fully
+    /// clipped pixel was carried and power is left, so the power is kept.
+    pub carried_gain: f64,
     /// Power above the white point it holds in the end.
     pub filled: f64,
 }

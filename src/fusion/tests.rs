@@ -1056,3 +1056,72 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
         }
     }
 }
+
+/// The window room of [`a_window_region_takes_the_sky_the_other_probes_see_in_its_directions`]
+/// fused with a light placed in the window's direction of power `light_power` (a
+/// sun triangulated at infinity), with the sky lookup; returns the window's power
+/// above white in the fused frame and in the truth.
+fn window_with_placed_light(light_power: f64) -> (f64, f64) {
+    use crate::scene::Pose;
+    use lights::tests::upright;
+    use lights::SkyView;
+    let (w, h) = (256, 128);
+    let render = |pose: &Pose| {
+        HdrImage::from_fn(w, h, |x, y| {
+            let d = crate::sphere::pixel_to_dir(x, y, w, h);
+            window_room(pose.position, pose.world_from_camera * d)
+        })
+    };
+    let probes: Vec<Pose> = [(0.0, -1.0), (0.5, 1.2), (-1.0, 0.2), (1.5, -0.3)]
+        .iter()
+        .map(|&(x, y)| upright(glam::Vec3::new(x, y, 1.5)))
+        .collect();
+    let images: Vec<HdrImage> = probes.iter().map(render).collect();
+    let frame = upright(glam::Vec3::new(0.6, 0.1, 1.5));
+    let truth = render(&frame);
+    let white = 2.0f32;
+    let (codes, lin) = sdr_of(&truth, white);
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let sky = SkyView {
+        probes: images.iter().zip(&probes).collect(),
+        frame,
+        floor: white,
+    };
+    let towards_window = glam::Vec3::new(3.0, 0.0, 1.6) - frame.position;
+    let light = FrameLight {
+        dir: frame.world_from_camera.transpose() * towards_window.normalize(),
+        power: light_power,
+        radiance: 0.0,
+        peak: 0.0,
+        view: None,
+    };
+    let (out, report) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &images[0],
+        &[light],
+        Some(&sky),
+        &FusionParams::default(),
+    )
+    .unwrap();
+    assert!(report.blobs.iter().any(|b| b.placed), "{report:?}");
+    (power_above(&out, white), power_above(&truth, white))
+}
+
+#[test]
+fn a_weak_light_placed_in_a_window_does_not_hide_the_sky_behind_it() {
+    // A light the probes triangulated faintly (a sliver of sun) shares the window:
+    // the window still holds the sky the probes see in its directions, not only
+    // the light's power.
+    let (got, want) = window_with_placed_light(0.01);
+    assert!((got / want - 1.0).abs() < 0.03, "{got} vs {want}");
+}
+
+#[test]
+fn a_placed_light_stronger_than_the_sky_keeps_its_power_in_the_window() {
+    // The placed light holds more than the sky lookup covers: every fully clipped
+    // pixel is covered, and the power is kept by scaling the covered pixels.
+    let (_, sky) = window_with_placed_light(0.01);
+    let (got, _) = window_with_placed_light(3.0 * sky);
+    assert!(got > 2.7 * sky, "{got} vs {}", 3.0 * sky);
+    assert!(got < 3.3 * sky, "{got} vs {}", 3.0 * sky);
+}
