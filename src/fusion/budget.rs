@@ -3,19 +3,20 @@
 //! attributed to it ([`super::regions`]).
 
 use super::regions::{Pixels, Region};
-use super::{FrameLight, FusionParams, Transfer};
+use super::{FrameLight, FusionParams, LightReport, Transfer};
 use crate::sphere::dir_to_uv;
 
 /// Assigns each placed light to the region its direction falls in, or to the
-/// region nearest in direction within `max_angle_deg`.
+/// region nearest in direction within `max_angle_deg`; reports where each went.
 pub(super) fn assign_placed<'v>(
     px: &Pixels,
     regions: &mut [Region<'v>],
     placed: &'v [FrameLight<'v>],
     p: &FusionParams,
-) {
+) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.to_radians().cos();
+    let mut report = Vec::with_capacity(placed.len());
     for light in placed {
         let (d, pw) = (light.dir, light.power);
         if !(pw.is_finite() && pw > 0.0) || !d.is_finite() {
@@ -38,6 +39,21 @@ pub(super) fn assign_placed<'v>(
                 }
             }
         }
+        let moved_deg = match target {
+            Some(o) if px.region(y * w + x).is_none() => {
+                let c = d
+                    .normalize_or_zero()
+                    .dot(regions[o].dir.normalize_or_zero());
+                c.clamp(-1.0, 1.0).acos().to_degrees()
+            }
+            _ => 0.0,
+        };
+        report.push(LightReport {
+            at_px: (u * w as f32, v * h as f32),
+            power: pw,
+            region: target,
+            moved_deg,
+        });
         let Some(o) = target else { continue };
         let a = &mut regions[o].placed;
         a.power += pw;
@@ -54,6 +70,7 @@ pub(super) fn assign_placed<'v>(
             a.peak = a.peak.max(light.peak);
         }
     }
+    report
 }
 
 /// True when `transfer` fills region `r` by radiance rather than by power.

@@ -339,11 +339,17 @@ fn fill_full(
         }
     }
     for r in regions.iter_mut() {
-        let far = r.placed.view.is_none();
+        // A light placed at infinity has a power the probes measured; a region
+        // without one has only the estimate's, which the far lookup overrules.
+        let measured = r.placed.any && r.placed.view.is_none();
         let f = &mut r.fill;
         f.rest = (f.target - f.partial - f.carried).max(0.0);
-        // Energy kept: with no pixel left to take the rest, the carried pixels do.
-        f.carried_gain = if far && f.missed_area == 0.0 && f.carried > 0.0 {
+        // Energy kept: with no pixel left to take the rest of a measured light's
+        // power, the carried pixels do. Where the power is only the estimate's
+        // (its transport may miscount a window's extent), the far lookup that
+        // covers every fully clipped pixel is the evidence and the rest is
+        // dropped (flat, frame 6: 1.39 estimated, 0.77 looked up, 0.77 true).
+        f.carried_gain = if measured && f.missed_area == 0.0 && f.carried > 0.0 {
             1.0 + f.rest / f.carried
         } else {
             1.0

@@ -198,6 +198,20 @@ pub struct BlobReport {
     pub reprojected: bool,
 }
 
+/// Where a light placed in 3-D ([`lights`]) went in one frame.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LightReport {
+    /// Where the frame sees it (column, row).
+    pub at_px: (f32, f32),
+    /// Its power above the white point at the frame's position.
+    pub power: f64,
+    /// The region (index into the blobs) that received it; none when no clipped
+    /// region is within `max_angle_deg`.
+    pub region: Option<usize>,
+    /// How far it was moved to reach that region (degrees; 0 when it fell in it).
+    pub moved_deg: f32,
+}
+
 /// What the fusion did for one frame.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct FusionReport {
@@ -214,6 +228,9 @@ pub struct FusionReport {
     /// shows, the prediction's, and the most the evidence allows.
     #[serde(default)]
     pub irradiance: IrradianceInterval,
+    /// The lights placed in 3-D as this frame sees them, and where each went.
+    #[serde(default)]
+    pub lights: Vec<LightReport>,
 }
 
 /// Clipped pixels (some channel clipped by `censor`) in regions of at least
@@ -331,7 +348,7 @@ pub fn fuse_with_lights(
     };
     let frame = Measured { white, ..*frame };
     let (mut px, mut regions) = regions::find(&frame, estimate, p);
-    budget::assign_placed(&px, &mut regions, placed, p);
+    let lights = budget::assign_placed(&px, &mut regions, placed, p);
     budget::target_power(&mut regions, p);
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);
@@ -351,6 +368,7 @@ pub fn fuse_with_lights(
                 reprojected: r.placed.view.is_some(),
             })
             .collect(),
+        lights,
         ..FusionReport::default()
     };
     report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();

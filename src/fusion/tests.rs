@@ -1062,6 +1062,13 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
 /// sun triangulated at infinity), with the sky lookup; returns the window's power
 /// above white in the fused frame and in the truth.
 fn window_with_placed_light(light_power: f64) -> (f64, f64) {
+    window_fill(Some(light_power), 1.0)
+}
+
+/// A window's fill (and the truth's power above white) with a light of the given
+/// power placed in it, or none, and an estimate whose radiance above white is
+/// `estimate_gain` times the nearest probe's.
+fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
     use crate::scene::Pose;
     use lights::tests::upright;
     use lights::SkyView;
@@ -1088,22 +1095,38 @@ fn window_with_placed_light(light_power: f64) -> (f64, f64) {
         floor: white,
     };
     let towards_window = glam::Vec3::new(3.0, 0.0, 1.6) - frame.position;
-    let light = FrameLight {
-        dir: frame.world_from_camera.transpose() * towards_window.normalize(),
-        power: light_power,
-        radiance: 0.0,
-        peak: 0.0,
-        view: None,
-    };
+    let light: Vec<FrameLight> = light_power
+        .map(|power| FrameLight {
+            dir: frame.world_from_camera.transpose() * towards_window.normalize(),
+            power,
+            radiance: 0.0,
+            peak: 0.0,
+            view: None,
+        })
+        .into_iter()
+        .collect();
+    let estimate = HdrImage::from_fn(w, h, |x, y| {
+        let v = images[0].get(x, y);
+        let l = luminance(v);
+        if l <= white {
+            return v;
+        }
+        let k = (white + (l - white) * estimate_gain) / l;
+        [v[0] * k, v[1] * k, v[2] * k]
+    });
     let (out, report) = fuse_with_lights(
         &Measured::new(&sdr, &lin, white),
-        &images[0],
-        &[light],
+        &estimate,
+        &light,
         Some(&sky),
         &FusionParams::default(),
     )
     .unwrap();
-    assert!(report.blobs.iter().any(|b| b.placed), "{report:?}");
+    assert_eq!(
+        report.blobs.iter().any(|b| b.placed),
+        light_power.is_some(),
+        "{report:?}"
+    );
     (power_above(&out, white), power_above(&truth, white))
 }
 
@@ -1124,4 +1147,13 @@ fn a_placed_light_stronger_than_the_sky_keeps_its_power_in_the_window() {
     let (got, _) = window_with_placed_light(3.0 * sky);
     assert!(got > 2.7 * sky, "{got} vs {}", 3.0 * sky);
     assert!(got < 3.3 * sky, "{got} vs {}", 3.0 * sky);
+}
+
+#[test]
+fn a_window_the_sky_lookup_covers_keeps_the_sky_not_the_estimates_larger_power() {
+    // The estimate (a transport of the nearest probe) holds twice the window's
+    // light; the probes' sky lookup covers every fully clipped pixel. With no light
+    // placed, nothing measured that extra power: the window holds the sky.
+    let (got, want) = window_fill(None, 2.0);
+    assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
 }
