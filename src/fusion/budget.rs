@@ -53,6 +53,8 @@ pub(super) fn assign_placed<'v>(
             power: pw,
             region: target,
             moved_deg,
+            probe_power: light.seen,
+            distance: light.distance,
         });
         let Some(o) = target else { continue };
         let a = &mut regions[o].placed;

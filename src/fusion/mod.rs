@@ -210,6 +210,12 @@ pub struct LightReport {
     pub region: Option<usize>,
     /// How far it was moved to reach that region (degrees; 0 when it fell in it).
     pub moved_deg: f32,
+    /// The powers the two probes that placed it measured.
+    #[serde(default)]
+    pub probe_power: [f64; 2],
+    /// Its distance from the frame in the poses' unit (`None` at infinity).
+    #[serde(default)]
+    pub distance: Option<f32>,
 }
 
 /// What the fusion did for one frame.
@@ -270,6 +276,11 @@ pub struct FrameLight<'a> {
     /// The light pixel by pixel through the surface it lies on, when the probes
     /// agree on one.
     pub view: Option<lights::LightView<'a>>,
+    /// The powers the two probes that placed it measured, and its distance from
+    /// the frame (in the poses' unit; `None` at infinity): how far `power` is
+    /// extrapolated.
+    pub seen: [f64; 2],
+    pub distance: Option<f32>,
 }
 
 /// The SDR frame as censored measurements: its codes, their radiance (the

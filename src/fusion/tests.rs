@@ -51,6 +51,8 @@ fn a_placed_light_never_gets_more_than_its_radiance_over_the_region() {
         radiance: 49.0,
         peak: 49.0,
         view: None,
+        seen: [0.0; 2],
+        distance: None,
     };
     let (_, rep) = fuse_with_lights(
         &Measured::new(&sdr, &lin, 1.0),
@@ -1006,6 +1008,8 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
         radiance: 0.0,
         peak: 0.0,
         view: None,
+        seen: [0.0; 2],
+        distance: None,
     }];
     let mut added = Vec::new();
     for f in 0..10 {
@@ -1102,6 +1106,8 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
             radiance: 0.0,
             peak: 0.0,
             view: None,
+            seen: [0.0; 2],
+            distance: None,
         })
         .into_iter()
         .collect();

@@ -289,6 +289,8 @@ impl PairLights {
                         probes: [a, b],
                         frame: *frame,
                     }),
+                    seen: [l.seen[0].0, l.seen[1].0],
+                    distance: (!l.at_infinity).then(|| l.position.distance(frame.position)),
                 }
             })
             .collect()
