@@ -2,7 +2,7 @@
 //! lights placed in 3-D that fall in it, else from the estimate's light
 //! attributed to it ([`super::regions`]).
 
-use super::regions::{Pixels, Region};
+use super::regions::{Disc, Pixels, Region};
 use super::{FrameLight, FusionParams, LightReport, Transfer};
 use crate::sphere::dir_to_uv;
 
@@ -64,6 +64,29 @@ pub(super) fn assign_placed<'v>(
             if a.view.map_or(true, |(p0, _)| pw > p0) {
                 a.view = Some((pw, v));
             }
+        }
+        // Its angular radius from the solid angle its power fills at the
+        // radiance the probes saw, at least a pixel across.
+        let px_angle = std::f32::consts::TAU / w as f32;
+        let solid = if light.radiance.is_finite() && light.radiance > 0.0 {
+            pw / light.radiance
+        } else {
+            0.0
+        };
+        let radius = ((solid / std::f64::consts::PI).sqrt() as f32).clamp(px_angle, 0.5);
+        // Only a light compact against its region is shaped as a disc: a broad
+        // source (a window, a panel that fills the region) keeps the estimate's
+        // shape.
+        let compact = solid > 0.0 && solid < p.disc_max_area * regions[o].area;
+        let a = &mut regions[o].placed;
+        a.broad |= !compact;
+        if compact {
+            a.discs.push(Disc {
+                dir: d.normalize(),
+                radius,
+                power: pw as f32,
+                norm: 0.0,
+            });
         }
         if light.radiance.is_finite() {
             a.radiance = a.radiance.max(light.radiance);

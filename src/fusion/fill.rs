@@ -111,10 +111,42 @@ impl Lookups {
     /// The shape of a region's fill at pixel `i`: a placed light with no surface
     /// keeps its power, but a far source the probes see in the same direction
     /// gives it its shape; else the shifted estimate.
-    fn shape(&self, estimate: &HdrImage, px: &Pixels, regions: &[Region], i: usize) -> [f32; 3] {
+    fn shape(
+        &self,
+        estimate: &HdrImage,
+        px: &Pixels,
+        regions: &[Region],
+        i: usize,
+        white: f32,
+    ) -> [f32; 3] {
         let r = &regions[px.lab[i] as usize];
         match self.sky.get(&i).copied() {
             Some(s) if r.far.ok && r.placed.any => s,
+            _ if r.placed.any
+                && r.placed.view.is_none()
+                && !r.placed.broad
+                && !r.placed.discs.is_empty() =>
+            {
+                // The placed lights' discs where they point, in the estimate's
+                // colour: the estimate's light may sit elsewhere in a region that
+                // holds a lamp and the wall it lights.
+                let d = px.dir(i);
+                let l: f32 = r
+                    .placed
+                    .discs
+                    .iter()
+                    .filter(|c| c.norm > 0.0)
+                    .map(|c| c.power * c.weight(d) / c.norm)
+                    .sum();
+                let e = shifted(estimate, px, regions, i);
+                let le = luminance(e);
+                let t = white + l;
+                if le > 1e-12 {
+                    [e[0] * t / le, e[1] * t / le, e[2] * t / le]
+                } else {
+                    [t; 3]
+                }
+            }
             _ => shifted(estimate, px, regions, i),
         }
     }
@@ -309,6 +341,23 @@ fn fill_full(
         r.fill.missed_cap =
             (r.placed.view.is_some() && r.placed.peak > 0.0).then_some(r.placed.peak);
     }
+    // Each disc's weight over the pixels that share the region's power.
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] != Kind::Full
+            || regions[o].placed.discs.is_empty()
+            || regions[o].placed.broad
+        {
+            continue;
+        }
+        if matches!(look.light(regions, o, i), Some(r) if luminance(r) > white) {
+            continue;
+        }
+        let (d, a) = (px.dir(i), px.solid_angle(i) as f32);
+        for c in regions[o].placed.discs.iter_mut() {
+            c.norm += c.weight(d) * a;
+        }
+    }
     let mut full_radiance: HashMap<usize, [f32; 3]> = HashMap::new();
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
@@ -331,7 +380,7 @@ fn fill_full(
                 }
             }
             _ => {
-                let e = look.shape(estimate, px, regions, i);
+                let e = look.shape(estimate, px, regions, i, white);
                 let f = &mut regions[o].fill;
                 f.inside += (luminance(e) as f64 - white as f64).max(0.0) * a;
                 f.missed_area += a;
@@ -380,7 +429,7 @@ fn fill_full(
             continue;
         }
         let reg = &regions[o];
-        let e = look.shape(estimate, px, regions, i);
+        let e = look.shape(estimate, px, regions, i, white);
         let le = luminance(e).max(0.0);
         let excess = (le - white).max(0.0) as f64;
         let f = &reg.fill;

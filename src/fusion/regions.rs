@@ -81,6 +81,38 @@ pub(super) struct Placed<'v> {
     /// The strongest of them that can be carried pixel by pixel through its
     /// surface, with its power.
     pub view: Option<(f64, &'v LightView<'v>)>,
+    /// Each of them as a disc in the frame: where its power lands when it has no
+    /// surface to be carried through.
+    pub discs: Vec<Disc>,
+    /// True when one of them is not compact against the region (no disc shape).
+    pub broad: bool,
+}
+
+/// A placed light seen as a disc: its direction (unit, camera axes), its angular
+/// radius (radians) and its power, spread over the region's pixels by its weight.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Disc {
+    pub dir: glam::Vec3,
+    pub radius: f32,
+    /// Its power at the frame.
+    pub power: f32,
+    /// The sum of its weight times solid angle over the region's fully clipped
+    /// pixels that take a share of the power (set by the fill).
+    pub norm: f32,
+}
+
+impl Disc {
+    /// The disc's weight in direction `d` (unit): a point spread with the
+    /// disc's radius as its scale and a tail falling as the fourth power of the
+    /// angle, so the nearest pixels of a region take the power of a light placed
+    /// a few pixels off it, and a light placed beside a region (moved into it)
+    /// gives most to the pixels nearest to it.
+    pub fn weight(&self, d: glam::Vec3) -> f32 {
+        let chord = (d - self.dir).length();
+        let t = 2.0 * (0.5 * chord).min(1.0).asin() / self.radius;
+        let q = 1.0 + t * t;
+        1.0 / (q * q)
+    }
 }
 
 /// Far sources the other probes see in the region's directions (sky through a

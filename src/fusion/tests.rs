@@ -1163,3 +1163,71 @@ fn a_window_the_sky_lookup_covers_keeps_the_sky_not_the_estimates_larger_power()
     let (got, want) = window_fill(None, 2.0);
     assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
 }
+
+#[test]
+fn a_lamp_merged_with_the_wall_it_lights_keeps_its_power_at_the_lamp() {
+    // One clipped region: a 3x3 lamp at (40, 20) touching a lit wall over x
+    // 42..63, y 15..26 that is just above white. The estimate has the wall and
+    // the lamp's light, but puts the light on the wall at (56, 20); the probes
+    // placed the lamp where the frame sees it, with its power.
+    let (w, h) = (128, 64);
+    let (lamp, wall) = (
+        |x: usize, y: usize| (39..=41).contains(&x) && (19..=21).contains(&y),
+        |x: usize, y: usize| (42..63).contains(&x) && (15..26).contains(&y),
+    );
+    let mut codes = vec![100u8; w * h * 3];
+    let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+    for y in 0..h {
+        for x in 0..w {
+            if lamp(x, y) || wall(x, y) {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 255]);
+                lin.set(x, y, [1.0, 1.0, 1.0]);
+            }
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (55..=57).contains(&x) && (19..=21).contains(&y) {
+            [500.0; 3]
+        } else if wall(x, y) {
+            [1.5; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let sa = row_solid_angles(w, h);
+    let lamp_area: f64 = (19..=21).map(|y| 3.0 * sa[y] as f64).sum();
+    let light = FrameLight {
+        dir: crate::sphere::pixel_to_dir(40, 20, w, h),
+        power: 499.0 * lamp_area,
+        radiance: 499.0,
+        peak: 499.0,
+        view: None,
+        seen: [0.0; 2],
+        distance: None,
+    };
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let (out, rep) =
+        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[light], None, &p).unwrap();
+    assert_eq!(rep.blobs.len(), 1, "{rep:?}");
+    assert!(rep.blobs[0].placed);
+    // Power above white within two pixels of the lamp, and on the far wall.
+    let near = |x: usize, y: usize| (38..=42).contains(&x) && (18..=22).contains(&y);
+    let (mut at_lamp, mut far) = (0.0f64, 0.0f64);
+    for y in 0..h {
+        for x in 0..w {
+            let e = (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64;
+            if near(x, y) {
+                at_lamp += e;
+            } else if x >= 50 {
+                far += e;
+            }
+        }
+    }
+    let placed = 499.0 * lamp_area;
+    assert!(at_lamp > 0.5 * placed, "at the lamp {at_lamp} of {placed}");
+    assert!(far < 0.2 * placed, "on the far wall {far} of {placed}");
+}
