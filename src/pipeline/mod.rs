@@ -635,13 +635,14 @@ pub fn predict_frame(
         fn view(pp: &Arc<PreparedProbe>) -> crate::fusion::lights::View<'_> {
             (&*pp.image, &pp.pose)
         }
-        let mut placed = Vec::new();
+        let (mut placed, mut near) = (Vec::new(), Vec::new());
         if params.fusion.place_lights && probes.len() >= 2 {
             let (a, b) = (view(&probes[0]), view(&probes[1]));
             let pair = pairs.get((used[0], used[1]), || {
                 pair_lights(a, b, white, &params.fusion)
             });
             placed = pair.at_frame(a, b, &frame.pose);
+            near = pair.near();
         }
         // Far sources (sky through a window) are looked up in the nearest
         // `far_probes` probes.
@@ -653,6 +654,7 @@ pub fn predict_frame(
                 .collect(),
             frame: frame.pose,
             floor: white,
+            near,
         });
         let (img, mut rep) = fuse_with_lights(
             &Measured {

@@ -9,7 +9,7 @@ mod surface;
 mod view;
 
 pub use surface::{fit_surface, Surface};
-pub use view::{LightView, SkyView};
+pub use view::{LightView, NearLight, SkyView};
 
 use super::{components, FrameLight, FusionParams};
 use crate::image::{luminance, HdrImage};
@@ -260,6 +260,32 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
 }
 
 impl PairLights {
+    /// The lights placed at a finite distance, each as a ball whose radius holds
+    /// the larger solid angle (power over mean radiance) its probes saw it fill.
+    pub fn near(&self) -> Vec<NearLight> {
+        self.lights
+            .iter()
+            .filter(|(l, _)| !l.at_infinity && l.position.is_finite())
+            .map(|(l, _)| {
+                let radius = (0..2)
+                    .map(|k| {
+                        let (pw, dist) = l.seen[k];
+                        let solid = if l.radiance[k] > 0.0 {
+                            pw / l.radiance[k]
+                        } else {
+                            0.0
+                        };
+                        dist * (solid / std::f64::consts::PI).sqrt() as f32
+                    })
+                    .fold(0.0f32, f32::max);
+                NearLight {
+                    position: l.position,
+                    radius: if radius.is_finite() { radius } else { 0.0 },
+                }
+            })
+            .collect()
+    }
+
     /// The lights carried to a frame with pose `frame`: direction in the frame's
     /// camera axes, power at its position, and the brightest mean and peak
     /// radiance a probe saw, for [`super::fuse_with_lights`]. `a` and `b` are the probes the lights

@@ -389,3 +389,51 @@ fn a_pairs_lights_found_once_serve_every_frame() {
         }
     }
 }
+
+#[test]
+fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it() {
+    // A dim room (0.5) with a lamp ball of radius 0.1 m and radiance 1000. The
+    // probe sees the lamp in direction `dw`; the frame, 1.4 m away, sees the wall
+    // in that same direction.
+    let lamp = Vec3::new(2.0, 0.0, 2.5);
+    let ball = |from: Vec3, d: Vec3, r: f32| {
+        let v = lamp - from;
+        let t = v.dot(d);
+        t > 0.0 && (v - t * d).length() <= r
+    };
+    let (w, h) = (256, 128);
+    let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+    let img = HdrImage::from_fn(w, h, |x, y| {
+        let d = probe.world_from_camera * pixel_to_dir(x, y, w, h);
+        if ball(probe.position, d, 0.1) {
+            [1000.0; 3]
+        } else {
+            [0.5; 3]
+        }
+    });
+    let frame = upright(Vec3::new(1.0, -1.0, 1.5));
+    let dw = (lamp - probe.position).normalize();
+    assert!(!ball(frame.position, dw, 0.1));
+    let d = frame.world_from_camera.transpose() * dw;
+    let sky = |near: Vec<NearLight>| SkyView {
+        probes: vec![(&img, &probe)],
+        frame,
+        floor: 1.0,
+        near,
+    };
+    // With nothing placed the lamp is taken for a far source.
+    assert!(sky(Vec::new()).radiance(d).is_some_and(|c| c[1] > 500.0));
+    // Placed where it is, it is not.
+    let placed = NearLight {
+        position: lamp,
+        radius: 0.1,
+    };
+    assert_eq!(sky(vec![placed]).radiance(d), None);
+    // A window's aperture (a light triangulated at its centre, as large as the
+    // window) is met by the frame's ray too: the sky through it is at infinity.
+    let window = NearLight {
+        position: lamp,
+        radius: 1.5,
+    };
+    assert!(sky(vec![window]).radiance(d).is_some());
+}

@@ -86,6 +86,12 @@ impl LightView<'_> {
     }
 }
 
+/// Probe pixels around a near light's ball that still count as that light.
+/// Chosen on the corpus's development scenes: irradiance error mean 0.2273,
+/// 0.2275, 0.2287 and p95 0.6056, 0.6053, 0.6050 with 1, 2, 4 (flat: the
+/// geometry, not this slack, does the work).
+const NEAR_SLACK_PX: f32 = 2.0;
+
 /// Bright sources far away (the sky and the sun through a window, and their mirror
 /// images in glossy floors), seen by the probes in the same direction as by the
 /// frame: radiance at infinity depends only on the direction.
@@ -98,6 +104,34 @@ pub struct SkyView<'a> {
     /// Radiance (luminance) a probe's sample must exceed to count: a probe that sees
     /// a wall in that direction, not the far source, says nothing about it.
     pub floor: f32,
+    /// Lights placed at a finite distance: a probe's ray that meets one sees
+    /// that light, not a far source, in that direction ([`PairLights::near`]).
+    ///
+    /// [`PairLights::near`]: super::PairLights::near
+    pub near: Vec<NearLight>,
+}
+
+/// A light placed at a finite distance, as a ball: where it is (world axes) and
+/// how large it is (the radius that holds the solid angle a probe saw it fill).
+#[derive(Clone, Copy, Debug)]
+pub struct NearLight {
+    pub position: Vec3,
+    pub radius: f32,
+}
+
+impl NearLight {
+    /// True when the ray from `from` along `d` (unit) passes within the light's
+    /// radius, widened by `slack` times its distance (an angle: a probe
+    /// pixel's width and the placement's uncertainty).
+    pub fn hit(&self, from: Vec3, d: Vec3, slack: f32) -> bool {
+        let v = self.position - from;
+        let along = v.dot(d);
+        if along <= 0.0 {
+            return false;
+        }
+        let off = (v - along * d).length();
+        off <= self.radius + slack * v.length()
+    }
 }
 
 impl SkyView<'_> {
@@ -108,6 +142,18 @@ impl SkyView<'_> {
         let dw = self.frame.world_from_camera * d;
         let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
         for (img, pose) in &self.probes {
+            // A light placed nearby that this probe sees in that direction but
+            // the frame does not is not at infinity: it lies elsewhere in the
+            // frame. (A window's aperture, triangulated as a light, is met by
+            // both rays: the sky through it is at infinity.)
+            let slack = NEAR_SLACK_PX * std::f32::consts::TAU / img.width().max(1) as f32;
+            if self
+                .near
+                .iter()
+                .any(|l| l.hit(pose.position, dw, slack) && !l.hit(self.frame.position, dw, slack))
+            {
+                continue;
+            }
             let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
             if luminance(c) <= self.floor {
                 continue;
