@@ -126,6 +126,22 @@ pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
+/// Reads a text file of at most `max_bytes`, naming it in the error (a larger
+/// one is refused before it is read: the size is the input's to choose).
+pub fn read_to_string_limited(path: &Path, max_bytes: u64) -> Result<String> {
+    let len = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    if len > max_bytes {
+        return Err(Error::format(
+            path,
+            format!("{len} bytes, more than the {max_bytes} this file may hold"),
+        ));
+    }
+    let bytes = read(path)?;
+    String::from_utf8(bytes).map_err(|_| Error::format(path, "not UTF-8 text"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

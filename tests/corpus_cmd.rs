@@ -29,8 +29,9 @@ fn ok(out: &Output) -> String {
     String::from_utf8(out.stdout.clone()).unwrap()
 }
 
-/// A synthetic scene in `dir`, with a `summary.json` of unknown content beside it.
-fn scene(dir: &Path, seed: u64) {
+/// A synthetic scene in `dir`, with a `summary.json` beside it that flags
+/// `flagged` as unanswerable (among keys the command does not read).
+fn scene(dir: &Path, seed: u64, flagged: &[&str]) {
     let p = SynthParams {
         width: 256,
         n_frames: 4,
@@ -43,15 +44,22 @@ fn scene(dir: &Path, seed: u64) {
     synthesize(&p).write(dir).unwrap();
     std::fs::write(
         dir.join("summary.json"),
-        r#"{"unanswerable_frames": [false, true], "anything": {"else": 1}}"#,
+        format!(
+            r#"{{"unanswerable_frames": [{}], "anything": {{"else": 1}}}}"#,
+            flagged
+                .iter()
+                .map(|f| format!(r#"{{"id": "{f}", "unseen_share": 0.5}}"#))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     )
     .unwrap();
 }
 
 /// A corpus of two scenes, `room_a` (dev) and `room_b` (val).
 fn corpus(root: &Path) {
-    scene(&root.join("scenes/room_a"), 11);
-    scene(&root.join("scenes/room_b"), 12);
+    scene(&root.join("scenes/room_a"), 11, &["frame_001"]);
+    scene(&root.join("scenes/room_b"), 12, &[]);
     std::fs::write(
         root.join("corpus.json"),
         r#"{"generator_version": "test-1", "scenes": [
@@ -114,9 +122,10 @@ fn corpus_rows_and_totals_match_eval_and_a_rerun_resumes() {
     let report = read_json(&out.join("corpus.json"));
     assert_eq!(report["roots"][0]["generator_version"], "test-1");
     let rows = report["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 2 * LABELS.len());
+    // Every row, and every row again over the answerable frames.
+    assert_eq!(rows.len(), 2 * 2 * LABELS.len());
     let totals = report["totals"].as_array().unwrap();
-    assert_eq!(totals.len(), 2 * LABELS.len());
+    assert_eq!(totals.len(), 2 * 2 * LABELS.len());
 
     let csv = std::fs::read_to_string(out.join("corpus.csv")).unwrap();
     let mut lines = csv.lines();
@@ -200,6 +209,39 @@ fn corpus_rows_and_totals_match_eval_and_a_rerun_resumes() {
                 .find(|l| l[0] == "total" && l[1] == split && l[3] == label)
                 .unwrap();
             assert_eq!(line[col("scenes")], "1");
+            // The same row over the frames the summary does not flag: room_a's
+            // frame_001 left out, room_b's row unchanged.
+            let apart = format!("{label}@answerable");
+            let row_a = rows
+                .iter()
+                .find(|r| r["scene"] == scene && r["method"] == apart.as_str())
+                .unwrap_or_else(|| panic!("no row {scene} {apart}"));
+            let irr: Vec<f64> = ev["frames"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|f| scene == "room_b" || f["id"] != "frame_001")
+                .map(|f| {
+                    let s = f["scores"].as_array().unwrap();
+                    let m = s.iter().find(|x| x[0] == label).unwrap();
+                    num(&m[1]["irradiance_rel_err"])
+                })
+                .collect();
+            assert_eq!(row_a["frames"], irr.len());
+            let mean = irr.iter().sum::<f64>() / irr.len() as f64;
+            let got = num(&row_a["tail"]["metrics"]["irradiance_rel_err"]["mean"]);
+            assert!(
+                (got - mean).abs() < 1e-9,
+                "{scene} {apart}: {got} vs {mean}"
+            );
+            if scene == "room_b" {
+                assert_eq!(row_a["tail"], *tail);
+            } else {
+                assert_eq!(row_a["tail"]["flicker"]["pairs"], 2);
+                for m in METRICS {
+                    assert_ne!(row_a["tail"]["metrics"][m]["worst_frame"], "frame_001");
+                }
+            }
         }
     }
 
@@ -239,7 +281,7 @@ fn a_failing_scene_is_a_failed_row_and_bad_roots_are_one_line_errors() {
     assert!(err.contains("rows failed"), "{err}");
     let report = read_json(&out.join("corpus.json"));
     let rows = report["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 6);
+    assert_eq!(rows.len(), 12);
     for row in rows {
         let failed = row["scene"] == "room_b";
         assert_eq!(row["error"].is_string(), failed, "{row}");
@@ -298,4 +340,23 @@ fn a_failing_scene_is_a_failed_row_and_bad_roots_are_one_line_errors() {
         !out2.exists(),
         "nothing is written for a bad scene description"
     );
+    // A scene summary that does not say which frames are unanswerable in the
+    // form the generator writes: nothing runs.
+    std::fs::write(
+        root.join("scenes/room_a/summary.json"),
+        r#"{"unanswerable_frames": [true]}"#,
+    )
+    .unwrap();
+    let out3 = tmp.path().join("out3");
+    let r = lumiprobe(&[
+        "corpus",
+        root.to_str().unwrap(),
+        "--out",
+        out3.to_str().unwrap(),
+    ]);
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("room_a/summary.json"), "{err}");
+    assert!(!out3.exists(), "nothing is written for a bad scene summary");
 }

@@ -91,6 +91,7 @@ pub fn evaluate_rescaled(scene: &Scene, preds: &[(String, &Path)]) -> Result<Sce
         scene,
         preds,
         &factors.iter().map(|x| x.1).collect::<Vec<_>>(),
+        None,
     )?;
     ev.scales = factors;
     Ok(ev)
@@ -120,10 +121,31 @@ pub fn nearest_probe_baseline(
 /// [`crate::eval::summary`] (p95, worst frame, frames over the SDR baseline's
 /// irradiance error, flicker between consecutive scored frames in walk order).
 pub fn evaluate(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
-    evaluate_scaled(scene, preds, &vec![1.0; preds.len()])
+    evaluate_scaled(scene, preds, &vec![1.0; preds.len()], None)
 }
 
-fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) -> Result<SceneEval> {
+/// Suffix of the rows [`evaluate_apart`] adds: the label's scores over the
+/// frames the inputs can answer.
+pub const ANSWERABLE: &str = "@answerable";
+
+/// Like [`evaluate`], with every row also scored over the frames not in
+/// `unanswerable` (frame ids: light that no probe saw, which no method can
+/// recover), as a row labelled `<label>@answerable`; none when no frame is left.
+/// Flicker in those rows is between consecutive answerable frames.
+pub fn evaluate_apart(
+    scene: &Scene,
+    preds: &[(String, &Path)],
+    unanswerable: &std::collections::HashSet<String>,
+) -> Result<SceneEval> {
+    evaluate_scaled(scene, preds, &vec![1.0; preds.len()], Some(unanswerable))
+}
+
+fn evaluate_scaled(
+    scene: &Scene,
+    preds: &[(String, &Path)],
+    factors: &[f64],
+    unanswerable: Option<&std::collections::HashSet<String>>,
+) -> Result<SceneEval> {
     use rayon::prelude::*;
     // Per scored frame: its scores, and the irradiance at the metrics' normals of
     // the truth and of each row's image (for flicker), computed with the scores.
@@ -182,9 +204,9 @@ fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) ->
     let labels: Vec<String> = scored[0].0.scores.iter().map(|s| s.0.clone()).collect();
     let sdr = labels.iter().position(|l| l == BASELINE_SDR);
     let mut table = MetricsTable::new();
-    for (k, label) in labels.iter().enumerate() {
-        let col: Vec<Metrics> = scored.iter().map(|f| f.0.scores[k].1).collect();
-        let samples: Vec<FrameSample> = scored
+    let push = |table: &mut MetricsTable, label: String, frames: &[&Scored], k: usize| {
+        let col: Vec<Metrics> = frames.iter().map(|f| f.0.scores[k].1).collect();
+        let samples: Vec<FrameSample> = frames
             .iter()
             .map(|(f, eg, ep)| FrameSample {
                 id: &f.id,
@@ -194,7 +216,23 @@ fn evaluate_scaled(scene: &Scene, preds: &[(String, &Path)], factors: &[f64]) ->
                 sdr_irradiance_err: sdr.map(|s| f.scores[s].1.irradiance_rel_err),
             })
             .collect();
-        table.push_with_tail(label.clone(), &col, summarize(&samples));
+        table.push_with_tail(label, &col, summarize(&samples));
+    };
+    let all: Vec<&Scored> = scored.iter().collect();
+    for (k, label) in labels.iter().enumerate() {
+        push(&mut table, label.clone(), &all, k);
+    }
+    if let Some(flagged) = unanswerable {
+        let kept: Vec<&Scored> = all
+            .iter()
+            .copied()
+            .filter(|f| !flagged.contains(&f.0.id))
+            .collect();
+        if !kept.is_empty() {
+            for (k, label) in labels.iter().enumerate() {
+                push(&mut table, format!("{label}{ANSWERABLE}"), &kept, k);
+            }
+        }
     }
     Ok(SceneEval {
         scene: scene.name.clone(),

@@ -11,7 +11,12 @@
 //!   `scenes/`): every such subfolder is a scene of split `shared`, named after
 //!   the subfolder; subfolders without a `poses.json` are skipped.
 //!
-//! A `summary.json` next to a scene's `poses.json` is not read.
+//! A `summary.json` next to a scene's `poses.json` (written by the corpus
+//! generator) is read for its `unanswerable_frames` (`[{"id": str, ...}]`): the
+//! frames whose light no probe saw, which no method can recover. Every row of
+//! such a scene is then also scored over its other frames, as a row
+//! `<method>@answerable` ([`super::evaluate::evaluate_apart`]), totals
+//! included. Scenes without one (the shared scenes) have no such rows.
 //!
 //! Every scene's `poses.json` is loaded before anything runs, so a bad root or an
 //! invalid `poses.json` stops the command at once with an error naming the file.
@@ -35,7 +40,7 @@ pub mod report;
 
 pub use report::{to_csv, to_text, totals, worst_irradiance_plot, write_outputs};
 
-use super::evaluate::{evaluate, BASELINE_PROBE, BASELINE_SDR};
+use super::evaluate::{evaluate, evaluate_apart, ANSWERABLE, BASELINE_PROBE, BASELINE_SDR};
 use super::{run, Method, RunParams};
 use crate::error::{Error, Result};
 use crate::eval::summary::RowSummary;
@@ -43,6 +48,7 @@ use crate::eval::Metrics;
 use crate::fsutil::write_atomic;
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 /// Which part of a corpus a scene belongs to.
@@ -208,6 +214,33 @@ pub fn discover(roots: &[PathBuf]) -> Result<(Vec<CorpusRoot>, Vec<CorpusScene>)
     Ok((infos, all))
 }
 
+/// The frames `dir/summary.json` flags as unanswerable (module docs); `None`
+/// without that file.
+pub fn unanswerable_frames(dir: &Path) -> Result<Option<HashSet<String>>> {
+    #[derive(Deserialize)]
+    struct Summary {
+        #[serde(default)]
+        unanswerable_frames: Vec<Flagged>,
+    }
+    #[derive(Deserialize)]
+    struct Flagged {
+        id: String,
+    }
+    let file = dir.join("summary.json");
+    if !file.is_file() {
+        return Ok(None);
+    }
+    let text = crate::fsutil::read_to_string_limited(&file, SUMMARY_MAX_BYTES)?;
+    let s: Summary = serde_json::from_str(&text)
+        .map_err(|e| Error::format(&file, format!("not a valid scene summary: {e}")))?;
+    Ok(Some(
+        s.unanswerable_frames.into_iter().map(|f| f.id).collect(),
+    ))
+}
+
+/// Largest `summary.json` read (a scene of thousands of frames is well under).
+const SUMMARY_MAX_BYTES: u64 = 64 << 20;
+
 /// What to run on each scene.
 #[derive(Clone, Debug)]
 pub struct CorpusOptions {
@@ -338,6 +371,10 @@ pub fn run_corpus(
         .iter()
         .map(|s| Scene::load(&s.dir))
         .collect::<Result<_>>()?;
+    let flagged: Vec<Option<HashSet<String>>> = scenes
+        .iter()
+        .map(|s| unanswerable_frames(&s.dir))
+        .collect::<Result<_>>()?;
     let mut methods: Vec<Method> = Vec::new();
     for &m in &opts.methods {
         if !methods.contains(&m) {
@@ -346,7 +383,7 @@ pub fn run_corpus(
     }
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut rows = Vec::new();
-    for (cs, scene) in scenes.iter().zip(&loaded) {
+    for ((cs, scene), flagged) in scenes.iter().zip(&loaded).zip(&flagged) {
         let row = |method: &str, error: Option<String>| CorpusRow {
             scene: cs.name.clone(),
             split: cs.split,
@@ -389,11 +426,25 @@ pub fn run_corpus(
         for b in [BASELINE_PROBE, BASELINE_SDR] {
             scene_rows.push(row(b, None));
         }
+        // The same rows over the answerable frames, where the scene says which.
+        if flagged.is_some() {
+            let apart: Vec<CorpusRow> = scene_rows
+                .iter()
+                .map(|r| CorpusRow {
+                    method: format!("{}{ANSWERABLE}", r.method),
+                    ..r.clone()
+                })
+                .collect();
+            scene_rows.extend(apart);
+        }
         log(&format!("{} ({}): scoring", cs.name, cs.split.name()));
         let refs: Vec<(String, &Path)> =
             ran.iter().map(|(l, d)| (l.clone(), d.as_path())).collect();
         let scored = guarded(|| {
-            let ev = evaluate(scene, &refs)?;
+            let ev = match flagged {
+                Some(f) => evaluate_apart(scene, &refs, f)?,
+                None => evaluate(scene, &refs)?,
+            };
             let js = serde_json::to_vec_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?;
             write_atomic(&out.join(&cs.name).join("eval.json"), &js)?;
             Ok(ev)
@@ -407,6 +458,8 @@ pub fn run_corpus(
                         r.mean = t.mean;
                         r.tail = t.tail.clone();
                     }
+                    // Every frame of the scene is unanswerable: nothing to score.
+                    None if r.method.ends_with(ANSWERABLE) => r.frames = 0,
                     None => r.error = Some("evaluation: no such row".into()),
                 },
                 Err(e) => r.error = Some(format!("evaluation: {e}")),

@@ -95,7 +95,7 @@ pub fn totals(rows: &[CorpusRow]) -> Vec<CorpusTotal> {
                 split,
                 method: label.clone(),
                 scenes: ok.len(),
-                failed: all.len() - ok.len(),
+                failed: all.iter().filter(|r| r.error.is_some()).count(),
                 frames: ok.iter().map(|o| o.2).sum(),
                 tail: RowSummary {
                     metrics: MetricStats {
