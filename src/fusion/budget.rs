@@ -7,7 +7,8 @@ use super::{FrameLight, FusionParams, LightReport, Transfer};
 use crate::sphere::dir_to_uv;
 
 /// Assigns each placed light to the region its direction falls in, or to the
-/// region nearest in direction within `max_angle_deg`; reports where each went.
+/// region nearest in direction within `max_angle_deg` whose estimate holds a
+/// power within `max_move_ratio` of the light's; reports where each went.
 pub(super) fn assign_placed<'v>(
     px: &Pixels,
     regions: &mut [Region<'v>],
@@ -48,6 +49,15 @@ pub(super) fn assign_placed<'v>(
             }
             _ => 0.0,
         };
+        // A light moved into a region is that region's light only if the
+        // estimate's light there is of its size: else it is another light.
+        if let Some(o) = target {
+            let e = regions[o].estimate.power;
+            let k = p.max_move_ratio;
+            if moved_deg > 0.0 && !(e * k > pw && e < k * pw) {
+                target = None;
+            }
+        }
         report.push(LightReport {
             at_px: (u * w as f32, v * h as f32),
             power: pw,

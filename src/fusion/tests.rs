@@ -1233,3 +1233,55 @@ fn a_lamp_merged_with_the_wall_it_lights_keeps_its_power_at_the_lamp() {
     assert!(at_lamp > 0.5 * placed, "at the lamp {at_lamp} of {placed}");
     assert!(far < 0.2 * placed, "on the far wall {far} of {placed}");
 }
+
+#[test]
+fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
+    // A clipped lamp the estimate holds with its power; the probes placed only a
+    // faint light 10 pixels (28 degrees) beside it, outside every clipped region.
+    let (w, h) = (128, 64);
+    let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (38..=42).contains(&x) && (18..=22).contains(&y) {
+            [50.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let faint = |power: f64| FrameLight {
+        dir: crate::sphere::pixel_to_dir(50, 20, w, h),
+        power,
+        radiance: 49.0,
+        peak: 49.0,
+        view: None,
+        seen: [power; 2],
+        distance: Some(3.0),
+    };
+    let lamp = power_above(&est, 1.0);
+    let fill = |power: f64| {
+        let (_, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[faint(power)],
+            None,
+            &p,
+        )
+        .unwrap();
+        (rep.blobs[0].filled_power, rep.lights[0].region)
+    };
+    // A light a thousandth of the lamp's is another light: not moved in.
+    let (filled, region) = fill(1e-3 * lamp);
+    assert_eq!(region, None);
+    assert!((filled / lamp - 1.0).abs() < 0.05, "{filled} vs {lamp}");
+    // One of the lamp's size is the lamp seen off by the pose error: moved in.
+    let (filled, region) = fill(0.8 * lamp);
+    assert_eq!(region, Some(0));
+    assert!(
+        (filled / (0.8 * lamp) - 1.0).abs() < 0.05,
+        "{filled} vs {}",
+        0.8 * lamp
+    );
+}
