@@ -50,11 +50,12 @@ pub(super) fn assign_placed<'v>(
             _ => 0.0,
         };
         // A light moved into a region is that region's light only if the
-        // estimate's light there is of its size: else it is another light.
+        // estimate's light there, when it has any, is of its size: else it is
+        // another light. (An estimate with no light there says nothing.)
         if let Some(o) = target {
             let e = regions[o].estimate.power;
             let k = p.max_move_ratio;
-            if moved_deg > 0.0 && !(e * k > pw && e < k * pw) {
+            if moved_deg > 0.0 && e > 0.0 && !(e * k > pw && e < k * pw) {
                 target = None;
             }
         }
