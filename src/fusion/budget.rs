@@ -84,7 +84,7 @@ pub(super) fn assign_placed<'v>(
         } else {
             0.0
         };
-        let radius = ((solid / std::f64::consts::PI).sqrt() as f32).clamp(px_angle, 0.5);
+        let radius = (crate::sphere::disc_radius(solid) as f32).clamp(px_angle, 0.5);
         // Only a light compact against its region is shaped as a disc: a broad
         // source (a window, a panel that fills the region) keeps the estimate's
         // shape.

@@ -32,6 +32,12 @@ pub fn pixel_to_dir(col: usize, row: usize, w: usize, h: usize) -> Vec3 {
     uv_to_dir((col as f32 + 0.5) / w as f32, (row as f32 + 0.5) / h as f32)
 }
 
+/// Angular radius (radians) of a small disc that fills `solid_angle` steradians
+/// (`solid_angle = pi r^2`; the small-angle cap). Zero for no solid angle.
+pub fn disc_radius(solid_angle: f64) -> f64 {
+    (solid_angle.max(0.0) / std::f64::consts::PI).sqrt()
+}
+
 /// Normalised panorama coordinates `(u, v)` of a direction (need not be unit length).
 /// `u` is in `[0, 1)`, `v` in `[0, 1]`.
 #[inline]

@@ -275,7 +275,7 @@ impl PairLights {
                         } else {
                             0.0
                         };
-                        dist * (solid / std::f64::consts::PI).sqrt() as f32
+                        dist * crate::sphere::disc_radius(solid) as f32
                     })
                     .fold(0.0f32, f32::max);
                 NearLight {
