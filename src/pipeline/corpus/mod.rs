@@ -36,6 +36,7 @@
 //! `corpus_worst_irradiance.png` (worst-frame irradiance error per scene and
 //! method, log y axis).
 
+pub mod bounds;
 pub mod report;
 
 pub use report::{to_csv, to_text, totals, worst_irradiance_plot, write_outputs};

@@ -320,11 +320,14 @@ pub fn worst_irradiance_plot(r: &CorpusReport) -> crate::eval::plot::Plot {
     }
 }
 
-/// Writes `corpus.txt`, `corpus.csv`, `corpus.json` and
-/// `corpus_worst_irradiance.png` into `out`, each atomically.
+/// Writes `corpus.txt`, `corpus.csv`, `corpus_bounds.txt`
+/// ([`super::bounds`]), `corpus.json` and `corpus_worst_irradiance.png` into
+/// `out`, each atomically.
 pub fn write_outputs(out: &Path, r: &CorpusReport) -> Result<()> {
     write_atomic(&out.join("corpus.txt"), to_text(r).as_bytes())?;
     write_atomic(&out.join("corpus.csv"), to_csv(r).as_bytes())?;
+    let bounds = super::bounds::to_text(r, &super::bounds::ISSUE_19);
+    write_atomic(&out.join("corpus_bounds.txt"), bounds.as_bytes())?;
     let js = serde_json::to_vec_pretty(r).map_err(|e| Error::Invalid(e.to_string()))?;
     write_atomic(&out.join("corpus.json"), &js)?;
     let w = (160 + 90 * r.scenes.len()).clamp(640, 1600);
