@@ -102,7 +102,7 @@ pub fn check(r: &CorpusReport, b: &Bounds) -> Vec<SceneChecks> {
                     && o.method != row.method
                     && o.error.is_none()
                     && o.frames > 0
-                    && o.method.ends_with(ANSWERABLE) == !suffix.is_empty()
+                    && o.method.ends_with(ANSWERABLE) != suffix.is_empty()
             })
             .filter_map(|o| o.tail.as_ref().and_then(|t| t.metrics.log_lum_rmse.mean))
             .collect();
