@@ -3,7 +3,7 @@
 //! attributed to it ([`super::regions`]).
 
 use super::regions::{Disc, Pixels, Region};
-use super::{FrameLight, FusionParams, LightReport, Transfer};
+use super::{Fallback, FrameLight, FusionParams, LightReport, Transfer};
 use crate::sphere::dir_to_uv;
 
 /// Assigns each placed light to the region its direction falls in, or to the
@@ -14,6 +14,7 @@ pub(super) fn assign_placed<'v>(
     regions: &mut [Region<'v>],
     placed: &'v [FrameLight<'v>],
     p: &FusionParams,
+    fallbacks: &mut Vec<Fallback>,
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.to_radians().cos();
@@ -56,6 +57,12 @@ pub(super) fn assign_placed<'v>(
             let e = regions[o].estimate.power;
             let k = p.max_move_ratio;
             if moved_deg > 0.0 && e > 0.0 && !(e * k > pw && e < k * pw) {
+                fallbacks.push(Fallback::MoveRefused {
+                    light: report.len(),
+                    region: o,
+                    power: pw,
+                    estimate_power: e,
+                });
                 target = None;
             }
         }
@@ -119,8 +126,12 @@ fn by_radiance(r: &Region, p: &FusionParams) -> bool {
 }
 
 /// The power each region receives (`fill.target`).
-pub(super) fn target_power(regions: &mut [Region], p: &FusionParams) {
-    for r in regions.iter_mut() {
+pub(super) fn target_power(
+    regions: &mut [Region],
+    p: &FusionParams,
+    fallbacks: &mut Vec<Fallback>,
+) {
+    for (o, r) in regions.iter_mut().enumerate() {
         let (e, a) = (&r.estimate, &r.placed);
         r.fill.target = if by_radiance(r, p) {
             if e.area > 0.0 {
@@ -134,14 +145,30 @@ pub(super) fn target_power(regions: &mut [Region], p: &FusionParams) {
             // that radiance over its solid angle: this bounds the inverse-square
             // extrapolation for a frame close to a large source (a window, a lamp
             // shade overhead).
-            a.power.min(a.radiance * r.area)
+            let held = a.radiance * r.area;
+            if held < a.power {
+                fallbacks.push(Fallback::RadianceBound {
+                    region: o,
+                    placed_power: a.power,
+                    held,
+                });
+            }
+            a.power.min(held)
         } else if a.any {
             a.power
         } else {
             // No pixel of the region is brighter than the brightest pixel of the
             // light attributed to it: a small region (a speck near the pole)
             // cannot hold a whole lamp's power.
-            e.power.min(e.peak * r.core_area)
+            let held = e.peak * r.core_area;
+            if held < e.power {
+                fallbacks.push(Fallback::PeakBound {
+                    region: o,
+                    estimate_power: e.power,
+                    held,
+                });
+            }
+            e.power.min(held)
         };
     }
 }

@@ -251,6 +251,50 @@ pub struct LightReport {
     pub distance: Option<f32>,
 }
 
+/// Where the evidence disagreed in one frame and the fusion took the more
+/// conservative estimate (issue 19's "do no harm"), named so the report says so.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Fallback {
+    /// A placed light outside every region was not moved into the nearest one:
+    /// the region's estimate holds a power more than `max_move_ratio` from it,
+    /// so it is another light. Index into [`FusionReport::lights`].
+    MoveRefused {
+        light: usize,
+        region: usize,
+        power: f64,
+        estimate_power: f64,
+    },
+    /// A region's placed power exceeded what the probes' mean radiance over its
+    /// solid angle can hold; it holds the latter.
+    RadianceBound {
+        region: usize,
+        placed_power: f64,
+        held: f64,
+    },
+    /// A region without a placed light held less than the estimate's light
+    /// attributed to it: no pixel brighter than the estimate's brightest.
+    PeakBound {
+        region: usize,
+        estimate_power: f64,
+        held: f64,
+    },
+    /// A region holds less than the power it was to receive (`target`): its
+    /// pixels could not take it (every fully clipped pixel carried a light
+    /// through its surface, a far source the probes see there overruled the
+    /// estimate, or no pixel may be brighter than the probes saw the light).
+    PowerDropped {
+        region: usize,
+        target: f64,
+        held: f64,
+    },
+}
+
+/// Shortfall, as a fraction of the power all the frame's regions were to
+/// receive, from which the report names a region's ([`Fallback::PowerDropped`]);
+/// a reporting threshold, not a setting.
+const DROP_REPORTED: f64 = 0.01;
+
 /// What the fusion did for one frame.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct FusionReport {
@@ -270,6 +314,9 @@ pub struct FusionReport {
     /// The lights placed in 3-D as this frame sees them, and where each went.
     #[serde(default)]
     pub lights: Vec<LightReport>,
+    /// Where the evidence disagreed and which conservative estimate was taken.
+    #[serde(default)]
+    pub fallbacks: Vec<Fallback>,
 }
 
 /// Clipped pixels (some channel clipped by `censor`) in regions of at least
@@ -392,8 +439,9 @@ pub fn fuse_with_lights(
     };
     let frame = Measured { white, ..*frame };
     let (mut px, mut regions) = regions::find(&frame, estimate, p);
-    let lights = budget::assign_placed(&px, &mut regions, placed, p);
-    budget::target_power(&mut regions, p);
+    let mut fallbacks = Vec::new();
+    let lights = budget::assign_placed(&px, &mut regions, placed, p, &mut fallbacks);
+    budget::target_power(&mut regions, p, &mut fallbacks);
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);
     let mut report = FusionReport {
@@ -415,6 +463,22 @@ pub fn fuse_with_lights(
         lights,
         ..FusionReport::default()
     };
+    let all: f64 = regions
+        .iter()
+        .map(|r| r.fill.target)
+        .filter(|t| t.is_finite())
+        .sum();
+    for (o, r) in regions.iter().enumerate() {
+        let (target, held) = (r.fill.target, r.fill.filled);
+        if target.is_finite() && target - held > DROP_REPORTED * all {
+            fallbacks.push(Fallback::PowerDropped {
+                region: o,
+                target,
+                held,
+            });
+        }
+    }
+    report.fallbacks = fallbacks;
     report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();
     feather(&mut out, estimate, &px.mask, w, h, p.feather_px);
     report.irradiance = interval::irradiance_interval(&out, frame.radiance, &px, &regions);

@@ -1270,18 +1270,100 @@ fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
             &p,
         )
         .unwrap();
-        (rep.blobs[0].filled_power, rep.lights[0].region)
+        (
+            rep.blobs[0].filled_power,
+            rep.lights[0].region,
+            rep.fallbacks,
+        )
     };
-    // A light a thousandth of the lamp's is another light: not moved in.
-    let (filled, region) = fill(1e-3 * lamp);
+    // A light a thousandth of the lamp's is another light: not moved in, and
+    // the report says so.
+    let (filled, region, fallbacks) = fill(1e-3 * lamp);
     assert_eq!(region, None);
     assert!((filled / lamp - 1.0).abs() < 0.05, "{filled} vs {lamp}");
+    assert!(
+        matches!(
+            fallbacks.as_slice(),
+            [super::Fallback::MoveRefused {
+                light: 0,
+                region: 0,
+                ..
+            }]
+        ),
+        "{fallbacks:?}"
+    );
     // One of the lamp's size is the lamp seen off by the pose error: moved in.
-    let (filled, region) = fill(0.8 * lamp);
+    let (filled, region, fallbacks) = fill(0.8 * lamp);
+    assert!(
+        !fallbacks
+            .iter()
+            .any(|f| matches!(f, super::Fallback::MoveRefused { .. })),
+        "{fallbacks:?}"
+    );
     assert_eq!(region, Some(0));
     assert!(
         (filled / (0.8 * lamp) - 1.0).abs() < 0.05,
         "{filled} vs {}",
         0.8 * lamp
     );
+}
+
+#[test]
+fn a_placed_light_brighter_than_the_probes_saw_it_is_bounded_and_reported() {
+    // A light placed in the lamp's region with a power its region could hold
+    // only at 100x the radiance the probes saw: the region holds what that
+    // radiance over its solid angle gives, and the report names the bound.
+    let (w, h) = (128, 64);
+    let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let est = HdrImage::from_fn(w, h, |_, _| [0.2; 3]);
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let light = FrameLight {
+        dir: crate::sphere::pixel_to_dir(40, 20, w, h),
+        power: 1.0,
+        radiance: 0.0,
+        peak: 0.0,
+        view: None,
+        seen: [1.0; 2],
+        distance: Some(3.0),
+    };
+    let area = |rep: &super::FusionReport| rep.blobs[0].solid_angle_sr;
+    let fuse = |l: FrameLight| {
+        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[l], None, &p)
+            .unwrap()
+            .1
+    };
+    let a = area(&fuse(light));
+    let rep = fuse(FrameLight {
+        radiance: 0.01 / a,
+        peak: 0.01 / a,
+        ..light
+    });
+    assert!(
+        (rep.blobs[0].filled_power - 0.01).abs() < 2e-3,
+        "{:?}",
+        rep.blobs[0]
+    );
+    assert!(
+        rep.fallbacks.iter().any(|f| matches!(
+            f,
+            super::Fallback::RadianceBound { region: 0, held, .. } if (held - 0.01).abs() < 1e-6
+        )),
+        "{:?}",
+        rep.fallbacks
+    );
+    // At the radiance its power needs, nothing is bounded.
+    let rep = fuse(FrameLight {
+        radiance: 10.0 / a,
+        peak: 10.0 / a,
+        ..light
+    });
+    assert!(
+        (rep.blobs[0].filled_power - 1.0).abs() < 0.05,
+        "{:?}",
+        rep.blobs[0]
+    );
+    assert!(rep.fallbacks.is_empty(), "{:?}", rep.fallbacks);
 }
