@@ -1367,3 +1367,75 @@ fn a_placed_light_brighter_than_the_probes_saw_it_is_bounded_and_reported() {
     );
     assert!(rep.fallbacks.is_empty(), "{:?}", rep.fallbacks);
 }
+
+#[test]
+fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_its_power() {
+    // Two clipped lamps 12 pixels apart; the estimate holds a bright lamp at the
+    // left one and a faint one at the right. The probes placed one light of the
+    // bright lamp's power between them, nearer the right region (a pose error):
+    // the right region's evidence (a 100x fainter light) does not support it, so
+    // it is not moved there; the left lamp keeps its power and the right one
+    // gets no extra light.
+    let (w, h) = (128, 64);
+    let (sdr_a, lin_a) = frame_with_lamp(w, h, (34, 20), 1);
+    let (sdr_b, lin_b) = frame_with_lamp(w, h, (46, 20), 1);
+    let mut codes = sdr_a.data().to_vec();
+    let mut lin = lin_a.clone();
+    for i in 0..w * h {
+        if sdr_b.data()[3 * i] == 255 {
+            codes[3 * i..3 * i + 3].copy_from_slice(&[255, 255, 255]);
+            lin.set(i % w, i / w, lin_b.get(i % w, i / w));
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        let inside = |cx: usize| (cx - 1..=cx + 1).contains(&x) && (19..=21).contains(&y);
+        if inside(34) {
+            [100.0; 3]
+        } else if inside(46) {
+            [2.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let left_power = power_above(
+        &HdrImage::from_fn(w, h, |x, y| if x < 40 { est.get(x, y) } else { [0.0; 3] }),
+        1.0,
+    );
+    let light = FrameLight {
+        dir: crate::sphere::pixel_to_dir(42, 20, w, h),
+        power: left_power,
+        radiance: 99.0,
+        peak: 99.0,
+        view: None,
+        seen: [left_power; 2],
+        distance: Some(3.0),
+    };
+    let (out, rep) =
+        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[light], None, &p).unwrap();
+    assert_eq!(rep.blobs.len(), 2);
+    let left = rep.blobs.iter().position(|b| b.centre.0 < 40.0).unwrap();
+    let right = 1 - left;
+    assert_eq!(rep.lights[0].region, None, "{:?}", rep.lights);
+    assert!(
+        rep.fallbacks
+            .iter()
+            .any(|f| matches!(f, Fallback::MoveRefused { region, .. } if *region == right)),
+        "{:?}",
+        rep.fallbacks
+    );
+    let filled = |b: usize| rep.blobs[b].filled_power;
+    assert!(
+        (filled(left) / left_power - 1.0).abs() < 0.05,
+        "{:?}",
+        rep.blobs
+    );
+    assert!(filled(right) < 0.05 * left_power, "{:?}", rep.blobs);
+    // Energy: the frame holds the two lamps' light once.
+    let total = power_above(&out, 1.0);
+    assert!(total < 1.1 * (left_power + filled(right)), "{total}");
+}
