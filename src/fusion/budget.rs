@@ -125,6 +125,20 @@ fn by_radiance(r: &Region, p: &FusionParams) -> bool {
     }
 }
 
+/// `power` bounded by what the region can hold (`held`); a binding bound is
+/// reported as the fallback `named` makes of the two.
+fn bounded(
+    power: f64,
+    held: f64,
+    fallbacks: &mut Vec<Fallback>,
+    named: impl FnOnce(f64, f64) -> Fallback,
+) -> f64 {
+    if held < power {
+        fallbacks.push(named(power, held));
+    }
+    power.min(held)
+}
+
 /// The power each region receives (`fill.target`).
 pub(super) fn target_power(
     regions: &mut [Region],
@@ -145,30 +159,26 @@ pub(super) fn target_power(
             // that radiance over its solid angle: this bounds the inverse-square
             // extrapolation for a frame close to a large source (a window, a lamp
             // shade overhead).
-            let held = a.radiance * r.area;
-            if held < a.power {
-                fallbacks.push(Fallback::RadianceBound {
+            bounded(a.power, a.radiance * r.area, fallbacks, |power, held| {
+                Fallback::RadianceBound {
                     region: o,
-                    placed_power: a.power,
+                    placed_power: power,
                     held,
-                });
-            }
-            a.power.min(held)
+                }
+            })
         } else if a.any {
             a.power
         } else {
             // No pixel of the region is brighter than the brightest pixel of the
             // light attributed to it: a small region (a speck near the pole)
             // cannot hold a whole lamp's power.
-            let held = e.peak * r.core_area;
-            if held < e.power {
-                fallbacks.push(Fallback::PeakBound {
+            bounded(e.power, e.peak * r.core_area, fallbacks, |power, held| {
+                Fallback::PeakBound {
                     region: o,
-                    estimate_power: e.power,
+                    estimate_power: power,
                     held,
-                });
-            }
-            e.power.min(held)
+                }
+            })
         };
     }
 }

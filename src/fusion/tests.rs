@@ -4,15 +4,47 @@ use crate::image::luminance;
 use crate::sphere::row_solid_angles;
 
 fn frame_with_lamp(w: usize, h: usize, lamp: (usize, usize), r: usize) -> (SdrImage, HdrImage) {
+    frame_with_lamps(w, h, &[lamp], r)
+}
+
+/// A grey frame (0.2) with square clipped lamps of half-width `r` at `lamps`.
+fn frame_with_lamps(
+    w: usize,
+    h: usize,
+    lamps: &[(usize, usize)],
+    r: usize,
+) -> (SdrImage, HdrImage) {
     let mut codes = vec![100u8; w * h * 3];
     let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
-    for y in lamp.1 - r..=lamp.1 + r {
-        for x in lamp.0 - r..=lamp.0 + r {
-            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 255]);
-            lin.set(x, y, [1.0, 1.0, 1.0]);
+    for lamp in lamps {
+        for y in lamp.1 - r..=lamp.1 + r {
+            for x in lamp.0 - r..=lamp.0 + r {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 255, 255]);
+                lin.set(x, y, [1.0, 1.0, 1.0]);
+            }
         }
     }
     (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+}
+
+/// A compact light placed in 3-D (3 units away) that a `w` x `h` frame sees at
+/// pixel `at` with `power`, at `radiance` (mean and peak alike), with no surface.
+fn compact_light(
+    w: usize,
+    h: usize,
+    at: (usize, usize),
+    power: f64,
+    radiance: f64,
+) -> FrameLight<'static> {
+    FrameLight {
+        dir: crate::sphere::pixel_to_dir(at.0, at.1, w, h),
+        power,
+        radiance,
+        peak: radiance,
+        view: None,
+        seen: [power; 2],
+        distance: Some(3.0),
+    }
 }
 
 fn power_above(img: &HdrImage, white: f32) -> f64 {
@@ -1251,15 +1283,7 @@ fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
         margin_px: 0,
         ..Default::default()
     };
-    let faint = |power: f64| FrameLight {
-        dir: crate::sphere::pixel_to_dir(50, 20, w, h),
-        power,
-        radiance: 49.0,
-        peak: 49.0,
-        view: None,
-        seen: [power; 2],
-        distance: Some(3.0),
-    };
+    let faint = |power: f64| compact_light(w, h, (50, 20), power, 49.0);
     let lamp = power_above(&est, 1.0);
     let fill = |power: f64| {
         let (_, rep) = fuse_with_lights(
@@ -1320,15 +1344,7 @@ fn a_placed_light_brighter_than_the_probes_saw_it_is_bounded_and_reported() {
         margin_px: 0,
         ..Default::default()
     };
-    let light = FrameLight {
-        dir: crate::sphere::pixel_to_dir(40, 20, w, h),
-        power: 1.0,
-        radiance: 0.0,
-        peak: 0.0,
-        view: None,
-        seen: [1.0; 2],
-        distance: Some(3.0),
-    };
+    let light = compact_light(w, h, (40, 20), 1.0, 0.0);
     let area = |rep: &super::FusionReport| rep.blobs[0].solid_angle_sr;
     let fuse = |l: FrameLight| {
         fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[l], None, &p)
@@ -1377,17 +1393,7 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
     // it is not moved there; the left lamp keeps its power and the right one
     // gets no extra light.
     let (w, h) = (128, 64);
-    let (sdr_a, lin_a) = frame_with_lamp(w, h, (34, 20), 1);
-    let (sdr_b, lin_b) = frame_with_lamp(w, h, (46, 20), 1);
-    let mut codes = sdr_a.data().to_vec();
-    let mut lin = lin_a.clone();
-    for i in 0..w * h {
-        if sdr_b.data()[3 * i] == 255 {
-            codes[3 * i..3 * i + 3].copy_from_slice(&[255, 255, 255]);
-            lin.set(i % w, i / w, lin_b.get(i % w, i / w));
-        }
-    }
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = frame_with_lamps(w, h, &[(34, 20), (46, 20)], 1);
     let est = HdrImage::from_fn(w, h, |x, y| {
         let inside = |cx: usize| (cx - 1..=cx + 1).contains(&x) && (19..=21).contains(&y);
         if inside(34) {
@@ -1406,15 +1412,7 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
         &HdrImage::from_fn(w, h, |x, y| if x < 40 { est.get(x, y) } else { [0.0; 3] }),
         1.0,
     );
-    let light = FrameLight {
-        dir: crate::sphere::pixel_to_dir(42, 20, w, h),
-        power: left_power,
-        radiance: 99.0,
-        peak: 99.0,
-        view: None,
-        seen: [left_power; 2],
-        distance: Some(3.0),
-    };
+    let light = compact_light(w, h, (42, 20), left_power, 99.0);
     let (out, rep) =
         fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[light], None, &p).unwrap();
     assert_eq!(rep.blobs.len(), 2);
