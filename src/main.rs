@@ -131,9 +131,6 @@ struct FlowOpts {
     /// Base method whose output fills clipped regions in `--method fusion`.
     #[arg(long, value_enum, default_value_t = Method::Flow)]
     fusion_base: Method,
-    /// What a clipped region inherits from the base method's light in `--method fusion`.
-    #[arg(long, value_enum, default_value_t = lumiprobe::fusion::FusionParams::default().transfer)]
-    fusion_transfer: lumiprobe::fusion::Transfer,
     /// Box radius over which the colour term is averaged (0 = per pixel).
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_radius)]
     dc_radius: usize,
@@ -594,10 +591,6 @@ fn run_params(
         warp: warp.params(),
         flow: flow.params(),
         fusion_base: flow.fusion_base,
-        fusion: lumiprobe::fusion::FusionParams {
-            transfer: flow.fusion_transfer,
-            ..Default::default()
-        },
         ..Default::default()
     }
 }

@@ -743,7 +743,7 @@ fn featureless_probe_faces_fall_back_cleanly() {
 
 /// Where the frame clipped: the fraction of its fully clipped pixels where `out`
 /// is within 10% of `probe`, and per clipped region (the fusion's regions: code
-/// 250 and up, specks under 3 pixels left out, a 1-pixel margin) the power above
+/// 250 and up, every clipped pixel, a 1-pixel margin) the power above
 /// the clip level of `out` and of `probe`.
 fn clipped_agreement(
     sdr: &SdrImage,
@@ -763,7 +763,7 @@ fn clipped_agreement(
         }
     }
     assert!(n > 0, "the frame clips nowhere");
-    let mask = clip_mask(sdr, &Default::default(), 3, 1);
+    let mask = clip_mask(sdr, &Default::default(), 1);
     let (lab, regions) = components(&mask, w, h);
     let mut power = vec![(0.0f64, 0.0f64); regions];
     for (i, &l) in lab.iter().enumerate() {

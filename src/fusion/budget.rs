@@ -3,7 +3,7 @@
 //! attributed to it ([`super::regions`]).
 
 use super::regions::{Disc, Pixels, Region};
-use super::{Fallback, FrameLight, FusionParams, LightReport, Transfer};
+use super::{Fallback, FrameLight, FusionParams, LightReport};
 use crate::sphere::dir_to_uv;
 
 /// Assigns each placed light to the region its direction falls in, or to the
@@ -116,15 +116,6 @@ pub(super) fn assign_placed<'v>(
     report
 }
 
-/// True when `transfer` fills region `r` by radiance rather than by power.
-fn by_radiance(r: &Region, p: &FusionParams) -> bool {
-    match p.transfer {
-        Transfer::Radiance => true,
-        Transfer::Power => false,
-        Transfer::Auto => r.core_pixels >= p.resolved_px,
-    }
-}
-
 /// `power` bounded by what the region can hold (`held`); a binding bound is
 /// reported as the fallback `named` makes of the two.
 fn bounded(
@@ -140,20 +131,10 @@ fn bounded(
 }
 
 /// The power each region receives (`fill.target`).
-pub(super) fn target_power(
-    regions: &mut [Region],
-    p: &FusionParams,
-    fallbacks: &mut Vec<Fallback>,
-) {
+pub(super) fn target_power(regions: &mut [Region], fallbacks: &mut Vec<Fallback>) {
     for (o, r) in regions.iter_mut().enumerate() {
         let (e, a) = (&r.estimate, &r.placed);
-        r.fill.target = if by_radiance(r, p) {
-            if e.area > 0.0 {
-                e.power / e.area * r.core_area
-            } else {
-                0.0
-            }
-        } else if a.any && a.radiance > 0.0 {
+        r.fill.target = if a.any && a.radiance > 0.0 {
             // No part of a source looks brighter than a probe saw it on average
             // (radiance is invariant along rays), so the region can hold at most
             // that radiance over its solid angle: this bounds the inverse-square

@@ -23,7 +23,7 @@ pub(super) struct Pixels {
     pub h: usize,
     /// Region of each pixel (`u32::MAX`: measured, outside every region).
     pub lab: Vec<u32>,
-    /// Clipped pixels of regions of at least `min_core_px`, before the margin.
+    /// Clipped pixels, before the margin.
     pub core: Vec<bool>,
     /// `core` grown by the margin: the pixels the fusion may change.
     pub mask: Vec<bool>,
@@ -171,8 +171,6 @@ pub(super) struct Region<'v> {
     pub area: f64,
     /// Solid angle of its clipped pixels (before the margin).
     pub core_area: f64,
-    /// Its clipped pixels (before the margin).
-    pub core_pixels: usize,
     /// Column of its first pixel: centroids are taken relative to it, so a region
     /// across the seam averages correctly.
     pub reference: usize,
@@ -217,8 +215,8 @@ pub(super) fn find<'v>(
 ) -> (Pixels, Vec<Region<'v>>) {
     let (sdr, white) = (frame.codes, frame.white);
     let (w, h) = (sdr.width(), sdr.height());
-    let core = clip_mask(sdr, &frame.censor, p.min_core_px, 0);
-    let mask = clip_mask(sdr, &frame.censor, p.min_core_px, p.margin_px);
+    let core = clip_mask(sdr, &frame.censor, 0);
+    let mask = clip_mask(sdr, &frame.censor, p.margin_px);
     let (lab, n) = components(&mask, w, h);
     let kinds: Vec<Kind> = sdr
         .data()
@@ -303,7 +301,6 @@ pub(super) fn find<'v>(
             r.area += px.sa[y] as f64;
             if px.core[i] {
                 r.core_area += px.sa[y] as f64;
-                r.core_pixels += 1;
             }
             r.pixels += 1;
             r.centroid.0 += rel_x(x, r.reference, w);

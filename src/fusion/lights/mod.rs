@@ -104,15 +104,9 @@ impl PlacedLight {
     }
 }
 
-/// Bright regions (luminance above `threshold`) of a probe taken with `pose`, with at
-/// least `min_px` pixels; regions closer than `join_deg` degrees count as one.
-pub fn find_lights(
-    img: &HdrImage,
-    pose: &Pose,
-    threshold: f32,
-    min_px: usize,
-    join_deg: f32,
-) -> Vec<Light> {
+/// Bright regions (luminance above `threshold`) of a probe taken with `pose`;
+/// regions closer than `join_deg` degrees count as one.
+pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, join_deg: f32) -> Vec<Light> {
     let (w, h) = (img.width(), img.height());
     let sa = row_solid_angles(w, h);
     let bright: Vec<bool> = img.pixels().map(|p| luminance(p) > threshold).collect();
@@ -135,7 +129,7 @@ pub fn find_lights(
         a.3 += sa[y] as f64;
     }
     acc.into_iter()
-        .filter(|a| a.2.len() >= min_px && a.1 > 0.0 && a.0.length() > 0.0)
+        .filter(|a| a.1 > 0.0 && a.0.length() > 0.0)
         .map(|a| Light {
             dir: a.0.normalize(),
             power: a.1,
@@ -229,9 +223,7 @@ pub struct PairLights {
 /// The lights two probes (image and pose each) both see, placed in 3-D, with their
 /// surfaces. `white` is the radiance at which the frames clip.
 pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights {
-    let find = |img: &HdrImage, pose: &Pose| {
-        find_lights(img, pose, white, p.min_core_px, p.light_join_deg)
-    };
+    let find = |img: &HdrImage, pose: &Pose| find_lights(img, pose, white, p.light_join_deg);
     let (la, lb) = (find(a.0, a.1), find(b.0, b.1));
     let (pa, pb) = (a.1.position, b.1.position);
     let mut lights = Vec::new();

@@ -95,7 +95,7 @@ fn lights_at_a_frame_do_not_depend_on_the_poses_unit() {
 }
 
 fn metres_power_seen(img: &HdrImage, pose: &Pose) -> f64 {
-    find_lights(img, pose, 1.0, 3, 0.7)
+    find_lights(img, pose, 1.0, 0.7)
         .iter()
         .map(|l| l.power)
         .sum()
@@ -119,9 +119,9 @@ fn fragments_of_one_lamp_closer_than_the_join_angle_are_one_light() {
         position: Vec3::ZERO,
         world_from_camera: glam::Mat3::IDENTITY,
     };
-    let apart = find_lights(&img, &pose, 1.0, 3, 0.0);
+    let apart = find_lights(&img, &pose, 1.0, 0.0);
     assert_eq!(apart.len(), 2);
-    let joined = find_lights(&img, &pose, 1.0, 3, 0.7);
+    let joined = find_lights(&img, &pose, 1.0, 0.7);
     assert_eq!(joined.len(), 1);
     // Joining adds no power and no solid angle: only the bright pixels count.
     let sum = |v: &[Light], f: fn(&Light) -> f64| v.iter().map(f).sum::<f64>();
@@ -285,8 +285,8 @@ fn a_uniform_panel_seen_small_and_large_is_fitted_to_the_ceiling() {
     );
     let (ia, ib) = (render(&a), render(&b));
     let (la, lb) = (
-        find_lights(&ia, &a, 2.0, 3, 0.7),
-        find_lights(&ib, &b, 2.0, 3, 0.7),
+        find_lights(&ia, &a, 2.0, 0.7),
+        find_lights(&ib, &b, 2.0, 0.7),
     );
     assert_eq!((la.len(), lb.len()), (1, 1));
     assert!(la[0].pixels.len() > 3 * lb[0].pixels.len());
@@ -315,8 +315,8 @@ fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
     let (a, b, ia, ib) = two_probes(w, h);
     let white = 2.0;
     let (la, lb) = (
-        find_lights(&ia, &a, white, 3, 0.7),
-        find_lights(&ib, &b, white, 3, 0.7),
+        find_lights(&ia, &a, white, 0.7),
+        find_lights(&ib, &b, white, 0.7),
     );
     assert_eq!((la.len(), lb.len()), (1, 1));
     let placed = triangulate(&la, a.position, &lb, b.position, 0.2);
