@@ -461,6 +461,41 @@ fn fill_full(
     }
 }
 
+/// The most the lookups can give each region, from the probes alone (before
+/// any pixel is written), for the ledger: the power carried through a light's
+/// surface into its clipped pixels, and for a far source (sky or sun through an
+/// aperture) its looked-up radiance where the lookup covers the fully clipped
+/// pixels and the brightest of those elsewhere in the aperture.
+fn book(px: &Pixels, regions: &mut [Region], look: &Lookups, white: f32) {
+    let excess = |r: [f32; 3]| (luminance(r) as f64 - white as f64).max(0.0);
+    let mut far_peak = vec![0.0f64; regions.len()];
+    let mut uncovered = vec![0.0f64; regions.len()];
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        if px.kinds[i] == Kind::Margin {
+            continue;
+        }
+        let a = px.solid_angle(i);
+        let r = &mut regions[o];
+        if r.placed.view.is_some() {
+            if let Some(&c) = look.carried.get(&i) {
+                r.booked.carried += excess(c) * a;
+            }
+        } else if r.far.ok && px.kinds[i] == Kind::Full {
+            match look.sky.get(&i) {
+                Some(&s) => {
+                    r.booked.far += excess(s) * a;
+                    far_peak[o] = far_peak[o].max(excess(s));
+                }
+                None => uncovered[o] += a,
+            }
+        }
+    }
+    for (o, r) in regions.iter_mut().enumerate() {
+        r.booked.far += far_peak[o] * uncovered[o];
+    }
+}
+
 /// Phases 3-5 over the regions, writing `out` (the linearised frame on entry);
 /// each region's `fill.filled` is the power above white it holds in the end.
 pub(super) fn fill(
@@ -477,6 +512,7 @@ pub(super) fn fill(
         sky: sky_rad,
         carried: carry_with_sharp_edges(px, regions, frame.white),
     };
+    book(px, regions, &look, frame.white);
     colour_ratios(frame, estimate, px, regions);
     fill_partial(frame, estimate, px, regions, &look, out);
     promote(frame, estimate, px, regions, out);

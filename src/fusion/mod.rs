@@ -22,11 +22,13 @@ mod budget;
 mod edges;
 mod fill;
 mod interval;
+pub mod ledger;
 pub mod lights;
 mod regions;
 
 pub use edges::{has_plateau, sharpen_edge};
 pub use interval::IrradianceInterval;
+pub use ledger::{Evidence, LedgerEntry, ProbeEvidence};
 
 use crate::error::{Error, Result};
 use crate::image::censor::Censor;
@@ -111,6 +113,11 @@ pub struct FusionParams {
     /// its moves).
     #[serde(default = "default_max_move_ratio")]
     pub max_move_ratio: f64,
+    /// Hold every region's added light to the ledger's bounds ([`ledger`]): no
+    /// pixel brighter than the probes measured, no region more power than the
+    /// probes measured of its sources. Without it the ledger is only reported.
+    #[serde(default)]
+    pub ledger: bool,
 }
 
 fn default_max_move_ratio() -> f64 {
@@ -165,6 +172,7 @@ impl Default for FusionParams {
             min_far_cover: default_far_cover(),
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),
+            ledger: false,
         }
     }
 }
@@ -285,6 +293,10 @@ pub struct FusionReport {
     /// Where the evidence disagreed and which conservative estimate was taken.
     #[serde(default)]
     pub fallbacks: Vec<Fallback>,
+    /// Each region's added light booked to its evidence ([`ledger`]); empty when
+    /// no probe evidence was given.
+    #[serde(default)]
+    pub ledger: Vec<LedgerEntry>,
 }
 
 /// Clipped pixels (some channel clipped by `censor`), grown by `margin` pixels.
@@ -357,7 +369,7 @@ pub fn fuse(
     estimate: &HdrImage,
     p: &FusionParams,
 ) -> Result<(HdrImage, FusionReport)> {
-    fuse_with_lights(frame, estimate, &[], None, p)
+    fuse_with_lights(frame, estimate, &[], None, None, p)
 }
 
 /// Like [`fuse`], with lights placed in 3-D ([`lights`]) as the frame sees them: a
@@ -374,6 +386,7 @@ pub fn fuse_with_lights(
     estimate: &HdrImage,
     placed: &[FrameLight],
     sky: Option<&lights::SkyView>,
+    evidence: Option<&Evidence>,
     p: &FusionParams,
 ) -> Result<(HdrImage, FusionReport)> {
     let (w, h) = (frame.codes.width(), frame.codes.height());
@@ -405,6 +418,30 @@ pub fn fuse_with_lights(
     budget::target_power(&mut regions, &mut fallbacks);
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);
+    let ledger = evidence.map(|ev| {
+        let l = ledger::apply(
+            frame.radiance,
+            &px,
+            &regions,
+            ev,
+            p.max_angle_deg,
+            p.ledger,
+            &mut out,
+        );
+        if p.ledger {
+            for r in regions.iter_mut() {
+                r.fill.filled = 0.0;
+            }
+            for (i, &l) in px.lab.iter().enumerate() {
+                if l != u32::MAX {
+                    let v = crate::image::luminance(out.get(i % w, i / w)) as f64;
+                    regions[l as usize].fill.filled +=
+                        (v - white as f64).max(0.0) * px.solid_angle(i);
+                }
+            }
+        }
+        l
+    });
     let mut report = FusionReport {
         blobs: regions
             .iter()
@@ -422,6 +459,7 @@ pub fn fuse_with_lights(
             })
             .collect(),
         lights,
+        ledger: ledger.unwrap_or_default(),
         ..FusionReport::default()
     };
     let all: f64 = regions
@@ -446,5 +484,7 @@ pub fn fuse_with_lights(
     Ok((out, report))
 }
 
+#[cfg(test)]
+mod ledger_tests;
 #[cfg(test)]
 mod tests;

@@ -186,6 +186,8 @@ pub(super) struct Region<'v> {
     pub far: Far,
     /// Phases 2-5: the fill.
     pub fill: Fill,
+    /// Phase 3: what the probes' lookups give it, for the ledger.
+    pub booked: super::ledger::Booked,
 }
 
 impl Region<'_> {

@@ -91,6 +91,7 @@ fn a_placed_light_never_gets_more_than_its_radiance_over_the_region() {
         &est,
         &[light(4900.0 * area)],
         None,
+        None,
         &p,
     )
     .unwrap();
@@ -106,6 +107,7 @@ fn a_placed_light_never_gets_more_than_its_radiance_over_the_region() {
         &Measured::new(&sdr, &lin, 1.0),
         &est,
         &[light(20.0 * area)],
+        None,
         None,
         &p,
     )
@@ -513,8 +515,15 @@ fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance
     assert!(placed
         .iter()
         .any(|l| matches!(l.view, Some(v) if matches!(v.surface, Surface::Plane { .. }))));
-    let (out, rep) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, white), &ia, &placed, None, &p).unwrap();
+    let (out, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &ia,
+        &placed,
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     assert!(rep.blobs.iter().any(|b| b.reprojected));
     let plain = FusionParams {
         surface_px: 0,
@@ -526,6 +535,7 @@ fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance
         &Measured::new(&sdr, &lin, white),
         &ia,
         &placed_plain,
+        None,
         None,
         &plain,
     )
@@ -575,8 +585,15 @@ fn fill_with_pose_error(posed: glam::Vec3, truth_at: glam::Vec3) -> (f64, usize)
                     .any(|v| v.radiance(d).is_some_and(|r| luminance(r) <= white))
         })
         .count();
-    let (out, rep) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, white), &ia, &placed, None, &p).unwrap();
+    let (out, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &ia,
+        &placed,
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     assert!(rep.blobs.iter().any(|b| b.reprojected));
     (
         power_above(&out, white) / power_above(&truth, white),
@@ -650,8 +667,15 @@ fn a_panel_seen_from_close_under_it_keeps_a_sharp_edge() {
     let p = FusionParams::default();
     let placed = lights_at_frame((&ia, &a), (&ib, &b), &frame, white, &p);
     let view = placed.iter().find_map(|l| l.view).expect("panel carried");
-    let (out, _) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, white), &ia, &placed, None, &p).unwrap();
+    let (out, _) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &ia,
+        &placed,
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     // Log error over the fully clipped pixels, against what the lookup alone
     // (the probes' blurrier view) gives them.
     let (mut sharp, mut blurred, mut n) = (0.0f64, 0.0f64, 0usize);
@@ -753,11 +777,19 @@ fn a_window_region_takes_the_sky_the_other_probes_see_in_its_directions() {
         &images[0],
         &[],
         Some(&sky),
+        None,
         &p,
     )
     .unwrap();
-    let (plain, _) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, white), &images[0], &[], None, &p).unwrap();
+    let (plain, _) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &images[0],
+        &[],
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     let want = power_above(&truth, white);
     let got = power_above(&out, white);
     assert!((got / want - 1.0).abs() < 0.02, "{got} vs {want}");
@@ -884,8 +916,15 @@ fn a_light_only_one_probe_sees_is_not_triangulated_and_keeps_the_estimates_power
         placed.len()
     );
     // The estimate: probe A as it is (same orientation as the frame).
-    let (out, rep) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, white), &ia, &placed, None, &p).unwrap();
+    let (out, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, white),
+        &ia,
+        &placed,
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     let lamp = rep
         .blobs
         .iter()
@@ -1043,6 +1082,7 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
             &est,
             &light,
             None,
+            None,
             &FusionParams::default(),
         )
         .unwrap();
@@ -1129,6 +1169,7 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
         &estimate,
         &light,
         Some(&sky),
+        None,
         &FusionParams::default(),
     )
     .unwrap();
@@ -1214,8 +1255,15 @@ fn a_lamp_merged_with_the_wall_it_lights_keeps_its_power_at_the_lamp() {
         margin_px: 0,
         ..Default::default()
     };
-    let (out, rep) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[light], None, &p).unwrap();
+    let (out, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, 1.0),
+        &est,
+        &[light],
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     assert_eq!(rep.blobs.len(), 1, "{rep:?}");
     assert!(rep.blobs[0].placed);
     // Power above white within two pixels of the lamp, and on the far wall.
@@ -1260,6 +1308,7 @@ fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
             &Measured::new(&sdr, &lin, 1.0),
             &est,
             &[faint(power)],
+            None,
             None,
             &p,
         )
@@ -1317,7 +1366,7 @@ fn a_placed_light_brighter_than_the_probes_saw_it_is_bounded_and_reported() {
     let light = compact_light(w, h, (40, 20), 1.0, 0.0);
     let area = |rep: &super::FusionReport| rep.blobs[0].solid_angle_sr;
     let fuse = |l: FrameLight| {
-        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[l], None, &p)
+        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[l], None, None, &p)
             .unwrap()
             .1
     };
@@ -1383,8 +1432,15 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
         1.0,
     );
     let light = compact_light(w, h, (42, 20), left_power, 99.0);
-    let (out, rep) =
-        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[light], None, &p).unwrap();
+    let (out, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, 1.0),
+        &est,
+        &[light],
+        None,
+        None,
+        &p,
+    )
+    .unwrap();
     assert_eq!(rep.blobs.len(), 2);
     let left = rep.blobs.iter().position(|b| b.centre.0 < 40.0).unwrap();
     let right = 1 - left;

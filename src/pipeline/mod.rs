@@ -17,7 +17,9 @@ use crate::flow::method::{
     flow_frame_scaled, restore_warped_lights, FlowMethodParams, FlowReport, RotatedSource,
 };
 use crate::fusion::lights::{pair_lights, PairLights};
-use crate::fusion::{fuse_with_lights, FusionParams, FusionReport, Measured};
+use crate::fusion::{
+    fuse_with_lights, Evidence, FusionParams, FusionReport, Measured, ProbeEvidence,
+};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
@@ -546,8 +548,13 @@ pub fn run_shard(
 #[derive(Default)]
 pub struct LightPairs {
     cells: Mutex<HashMap<(usize, usize), PairCell>>,
+    probes: Mutex<HashMap<usize, ProbeCell>>,
     spent: Mutex<(f64, usize)>,
 }
+
+/// One probe's evidence for the fusion's ledger, filled by the first frame that
+/// needs it.
+type ProbeCell = Arc<OnceLock<Arc<ProbeEvidence>>>;
 
 /// One pair's lights, filled by the first frame that needs them.
 type PairCell = Arc<OnceLock<Arc<PairLights>>>;
@@ -568,6 +575,16 @@ impl LightPairs {
             made
         })
         .clone()
+    }
+
+    /// The evidence of probe `index` ([`ProbeEvidence`]), made by `make` the
+    /// first time it is asked for.
+    pub fn probe(&self, index: usize, make: impl FnOnce() -> ProbeEvidence) -> Arc<ProbeEvidence> {
+        let cell = {
+            let mut cells = self.probes.lock().unwrap_or_else(|e| e.into_inner());
+            cells.entry(index).or_default().clone()
+        };
+        cell.get_or_init(|| Arc::new(make())).clone()
     }
 
     /// Time spent finding pairs' lights (ms) and how many pairs.
@@ -656,6 +673,20 @@ pub fn predict_frame(
             floor: white,
             near,
         });
+        // What the probes measured, for the ledger: each probe's bright regions
+        // and peak found once.
+        let probe_ev: Vec<Arc<ProbeEvidence>> = used
+            .iter()
+            .zip(&probes)
+            .take(params.fusion.far_probes.max(2))
+            .map(|(&u, pp)| {
+                pairs.probe(u, || {
+                    ProbeEvidence::new(&pp.image, &pp.pose, white, params.fusion.light_join_deg)
+                })
+            })
+            .collect();
+        let refs: Vec<&ProbeEvidence> = probe_ev.iter().map(|e| &**e).collect();
+        let evidence = Evidence::at_frame(&refs, &frame.pose, w, h);
         let (img, mut rep) = fuse_with_lights(
             &Measured {
                 codes: sdr,
@@ -666,6 +697,7 @@ pub fn predict_frame(
             &est,
             &placed,
             sky.as_ref(),
+            Some(&evidence),
             &params.fusion,
         )?;
         rep.time_ms = t.elapsed().as_secs_f64() * 1e3;

@@ -1,0 +1,232 @@
+//! The ledger's invariants ([`super::ledger`]), with the answer known and as
+//! properties over random frames, estimates and probe evidence.
+use super::ledger::{Evidence, SeenLight, Source};
+use super::*;
+use crate::image::luminance;
+use crate::sphere::{pixel_to_dir, row_solid_angles};
+use proptest::prelude::*;
+
+/// The fused frame's luminance power over the linearised frame's.
+fn added_power(out: &HdrImage, lin: &HdrImage) -> f64 {
+    let (w, h) = (out.width(), out.height());
+    let sa = row_solid_angles(w, h);
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            (luminance(out.get(x, y)) - luminance(lin.get(x, y))) as f64 * sa[y] as f64
+        })
+        .sum()
+}
+
+fn ledger_on() -> FusionParams {
+    FusionParams {
+        ledger: true,
+        ..Default::default()
+    }
+}
+
+/// A grey frame with a 3x3 block at (30, 12) clipped in red only (a red lamp's
+/// rim), and an estimate that has the lamp red with almost nothing in green and
+/// blue: the colour ratio a partially clipped pixel is extrapolated with is
+/// millions.
+fn red_rim(w: usize, h: usize) -> (SdrImage, HdrImage, HdrImage) {
+    let block = |x: usize, y: usize| (29..=31).contains(&x) && (11..=13).contains(&y);
+    let mut codes = vec![100u8; w * h * 3];
+    let lin = HdrImage::from_fn(w, h, |x, y| {
+        if block(x, y) {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 150, 150]);
+            [1.0, 0.4, 0.4]
+        } else {
+            [0.2, 0.2, 0.2]
+        }
+    });
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if block(x, y) {
+            [6.0, 1e-6, 1e-6]
+        } else {
+            [0.2, 0.2, 0.2]
+        }
+    });
+    (SdrImage::from_vec(w, h, codes).unwrap(), lin, est)
+}
+
+#[test]
+fn a_partly_clipped_pixel_is_never_brighter_than_the_probes_measured() {
+    let (w, h) = (64, 32);
+    let (sdr, lin, est) = red_rim(w, h);
+    let ev = Evidence {
+        peak: [40.0, 2.0, 2.0],
+        seen: vec![SeenLight {
+            dir: pixel_to_dir(30, 12, w, h),
+            power: 0.05,
+            probe: 0,
+        }],
+    };
+    let frame = Measured::new(&sdr, &lin, 1.0);
+    let max_red = |img: &HdrImage| img.pixels().map(|p| p[0]).fold(0.0f32, f32::max);
+    // Without the ledger the extrapolated red is millions (the defect).
+    let (off, rep) =
+        fuse_with_lights(&frame, &est, &[], None, Some(&ev), &FusionParams::default()).unwrap();
+    assert!(max_red(&off) > 1e5, "red {}", max_red(&off));
+    assert!(rep.ledger.iter().any(|e| e.ceiling_px > 0));
+    let (on, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &ledger_on()).unwrap();
+    assert!(max_red(&on) <= 40.0 + 1e-3, "red {}", max_red(&on));
+    // Measured channels stay as measured.
+    for y in 11..=13 {
+        for x in 29..=31 {
+            assert_eq!(on.get(x, y)[1], lin.get(x, y)[1]);
+        }
+    }
+    let booked: f64 = rep.ledger.iter().map(|e| e.added).sum();
+    assert!((booked - added_power(&on, &lin)).abs() < 1e-6);
+}
+
+#[test]
+fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
+    let (w, h) = (64, 32);
+    let (sdr, lin) = {
+        let mut codes = vec![100u8; w * h * 3];
+        let lin = HdrImage::from_fn(w, h, |x, y| {
+            if (10..=12).contains(&x) && (10..=12).contains(&y) {
+                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255; 3]);
+                [1.0; 3]
+            } else {
+                [0.2; 3]
+            }
+        });
+        (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+    };
+    // The estimate invents a lamp there; the probes saw their only light on the
+    // other side of the sphere.
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (10..=12).contains(&x) && (10..=12).contains(&y) {
+            [500.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let ev = Evidence {
+        peak: [900.0; 3],
+        seen: vec![SeenLight {
+            dir: pixel_to_dir(43, 20, w, h),
+            power: 2.0,
+            probe: 0,
+        }],
+    };
+    let frame = Measured::new(&sdr, &lin, 1.0);
+    let (off, _) =
+        fuse_with_lights(&frame, &est, &[], None, Some(&ev), &FusionParams::default()).unwrap();
+    assert!(added_power(&off, &lin) > 0.1);
+    let (on, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &ledger_on()).unwrap();
+    assert_eq!(rep.ledger.len(), 1);
+    assert_eq!(rep.ledger[0].source, Source::None);
+    assert!(added_power(&on, &lin).abs() < 1e-9);
+}
+
+/// A random frame: grey with `lamps` square regions fully clipped or clipped in
+/// some channels, an estimate with random (possibly wildly coloured) light
+/// there, and random probe evidence.
+#[derive(Debug, Clone)]
+struct Case {
+    lamps: Vec<(usize, usize, usize, [u8; 3], [f32; 3])>,
+    peak: [f32; 3],
+    seen: Vec<(usize, usize, f64)>,
+}
+
+const W: usize = 48;
+const H: usize = 24;
+
+fn case() -> impl Strategy<Value = Case> {
+    let code = prop_oneof![Just(255u8), Just(255u8), 100u8..200];
+    let lamp = (
+        2..W - 4,
+        2..H - 4,
+        0usize..3,
+        [code.clone(), code.clone(), code],
+        [1e-6f32..1e4, 1e-6f32..1e4, 1e-6f32..1e4],
+    );
+    (
+        proptest::collection::vec(lamp, 1..4),
+        [0.5f32..1e5, 0.5f32..1e5, 0.5f32..1e5],
+        proptest::collection::vec((0..W, 0..H, 1e-4f64..10.0), 0..4),
+    )
+        .prop_map(|(lamps, peak, seen)| Case { lamps, peak, seen })
+}
+
+fn build(c: &Case) -> (SdrImage, HdrImage, HdrImage, Evidence) {
+    let mut codes = vec![100u8; W * H * 3];
+    let mut lin = HdrImage::from_fn(W, H, |_, _| [0.2; 3]);
+    let mut est = HdrImage::from_fn(W, H, |_, _| [0.2; 3]);
+    for &(x0, y0, r, code, e) in &c.lamps {
+        for y in y0..=y0 + r {
+            for x in x0..=x0 + r {
+                let i = y * W + x;
+                codes[3 * i..3 * i + 3].copy_from_slice(&code);
+                lin.set(x, y, code.map(|k| if k == 255 { 1.0 } else { 0.4 }));
+                est.set(x, y, e);
+            }
+        }
+    }
+    let ev = Evidence {
+        peak: c.peak,
+        seen: c
+            .seen
+            .iter()
+            .enumerate()
+            .map(|(k, &(x, y, power))| SeenLight {
+                dir: pixel_to_dir(x, y, W, H),
+                power,
+                probe: k % 2,
+            })
+            .collect(),
+    };
+    (SdrImage::from_vec(W, H, codes).unwrap(), lin, est, ev)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// With no light placed in 3-D: no pixel brighter than the probes measured
+    /// (or than the frame measured it), nothing changed outside the clipped
+    /// regions, every region's fully clipped light within its budget, nothing
+    /// added where no source was named, and the ledger sums to what the frame
+    /// gained.
+    #[test]
+    fn the_ledger_bounds_and_balances_every_fill(c in case()) {
+        let (sdr, lin, est, ev) = build(&c);
+        let frame = Measured::new(&sdr, &lin, 1.0);
+        let (out, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &ledger_on()).unwrap();
+        let mask = clip_mask(&sdr, &frame.censor, ledger_on().margin_px);
+        for y in 0..H {
+            for x in 0..W {
+                let (v, s) = (out.get(x, y), lin.get(x, y));
+                for k in 0..3 {
+                    prop_assert!(v[k].is_finite());
+                    prop_assert!(v[k] <= ev.peak[k].max(s[k]) * (1.0 + 1e-5), "({x},{y}) {v:?} peak {:?}", ev.peak);
+                    if !mask[y * W + x] {
+                        prop_assert_eq!(v[k], s[k]);
+                    }
+                }
+            }
+        }
+        let booked: f64 = rep.ledger.iter().map(|e| e.added).sum();
+        let gained = added_power(&out, &lin);
+        prop_assert!((booked - gained).abs() <= 1e-6 * (1.0 + gained.abs()), "{booked} vs {gained}");
+        for e in &rep.ledger {
+            prop_assert!(e.added <= e.filled + 1e-9);
+            if e.source == Source::None {
+                // Only partially clipped pixels (bounded by their measured
+                // channels and the ceiling) may gain where no source was named.
+                let partial = c.lamps.iter().any(|l| l.3.iter().any(|&k| k != 255));
+                prop_assert!(partial || e.added < 1e-9, "{e:?}");
+            }
+        }
+        // A region whose clipped pixels all clipped in every channel holds no
+        // more than its budget.
+        if c.lamps.iter().all(|l| l.3 == [255; 3]) {
+            for e in &rep.ledger {
+                prop_assert!(e.added <= e.budget * (1.0 + 1e-5) + 1e-9, "{e:?}");
+            }
+        }
+    }
+}
