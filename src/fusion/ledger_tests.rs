@@ -230,3 +230,81 @@ proptest! {
         }
     }
 }
+
+/// A frame `w` x `h` whose only clipped pixel is a sun of `power` at
+/// direction (`u`, `v`) (fractions of the panorama), an estimate with the sun one
+/// pixel off at the radiance that power fills in one pixel, and probes that saw
+/// it (peak at their own size `probe`).
+fn sun_frame(
+    w: usize,
+    h: usize,
+    power: f64,
+    probe: (usize, usize),
+) -> (SdrImage, HdrImage, HdrImage, Evidence) {
+    let (sx, sy) = ((0.3 * w as f64) as usize, (0.25 * h as f64) as usize);
+    let sa = row_solid_angles(w, h);
+    let mut codes = vec![100u8; w * h * 3];
+    codes[3 * (sy * w + sx)..3 * (sy * w + sx) + 3].copy_from_slice(&[255; 3]);
+    let lin = HdrImage::from_fn(w, h, |x, y| {
+        if (x, y) == (sx, sy) {
+            [1.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let radiance = (power / sa[sy] as f64) as f32 + 1.0;
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (x, y) == (sx + 1, sy) {
+            [radiance; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let probe_sa = row_solid_angles(probe.0, probe.1)[(0.25 * probe.1 as f64) as usize] as f64;
+    let seen = super::ledger::ProbeEvidence {
+        lights: vec![super::lights::Light {
+            dir: pixel_to_dir(sx, sy, w, h),
+            power,
+            ..Default::default()
+        }],
+        peak: [(power / probe_sa) as f32 + 1.0; 3],
+        size: probe,
+    };
+    let pose = crate::scene::Pose {
+        position: glam::Vec3::ZERO,
+        world_from_camera: glam::Mat3::IDENTITY,
+    };
+    let ev = Evidence::at_frame(&[&seen], &pose, w, h);
+    (SdrImage::from_vec(w, h, codes).unwrap(), lin, est, ev)
+}
+
+#[test]
+fn a_sun_one_pixel_wide_keeps_its_power_at_three_resolutions() {
+    // A sun at 1e5 times the frame's grey, one pixel wide at every size; the
+    // probes were taken at 256x128, so a 512x256 frame sees it 4x brighter than
+    // their brightest pixel.
+    let power = 1e5 * 0.2 * 6.8e-5;
+    let mut irradiance = Vec::new();
+    for (w, h) in [(128, 64), (256, 128), (512, 256)] {
+        let (sdr, lin, est, ev) = sun_frame(w, h, power, (256, 128));
+        let frame = Measured::new(&sdr, &lin, 1.0);
+        for p in [FusionParams::default(), ledger_on()] {
+            let (out, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &p).unwrap();
+            let added = added_power(&out, &lin);
+            assert!(
+                (added - power).abs() < 0.05 * power,
+                "{w}x{h} ledger {}: {added} vs {power}",
+                p.ledger
+            );
+            assert_eq!(rep.blobs.len(), 1);
+            if p.ledger {
+                irradiance.push(rep.irradiance.estimate);
+            }
+        }
+    }
+    let (a, b) = (irradiance[0], irradiance[1]);
+    assert!(
+        (a - b).abs() < 0.02 * b,
+        "irradiance {a} at 128x64, {b} at 256x128"
+    );
+}
