@@ -464,35 +464,45 @@ fn fill_full(
 /// The most the lookups can give each region, from the probes alone (before
 /// any pixel is written), for the ledger: the power carried through a light's
 /// surface into its clipped pixels, and for a far source (sky or sun through an
-/// aperture) its looked-up radiance where the lookup covers the fully clipped
-/// pixels and the brightest of those elsewhere in the aperture.
+/// aperture) its looked-up radiance where the lookup covers the clipped pixels,
+/// and the covered ones' mean in the fully clipped pixels it does not cover.
 fn book(px: &Pixels, regions: &mut [Region], look: &Lookups, white: f32) {
     let excess = |r: [f32; 3]| (luminance(r) as f64 - white as f64).max(0.0);
-    let mut far_peak = vec![0.0f64; regions.len()];
+    // Solid angle of the fully clipped pixels the lookup covers, and of those
+    // it does not.
+    let mut covered = vec![0.0f64; regions.len()];
     let mut uncovered = vec![0.0f64; regions.len()];
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
-        if px.kinds[i] == Kind::Margin {
-            continue;
-        }
+        let k = match px.kinds[i] {
+            Kind::Margin => continue,
+            Kind::Full => 0,
+            Kind::Partial => 1,
+        };
         let a = px.solid_angle(i);
         let r = &mut regions[o];
         if r.placed.view.is_some() {
             if let Some(&c) = look.carried.get(&i) {
-                r.booked.carried += excess(c) * a;
+                r.booked.carried[k] += excess(c) * a;
             }
-        } else if r.far.ok && px.kinds[i] == Kind::Full {
+        } else if r.far.ok {
             match look.sky.get(&i) {
                 Some(&s) => {
-                    r.booked.far += excess(s) * a;
-                    far_peak[o] = far_peak[o].max(excess(s));
+                    r.booked.far[k] += excess(s) * a;
+                    if k == 0 {
+                        covered[o] += a;
+                    }
                 }
-                None => uncovered[o] += a,
+                None if k == 0 => uncovered[o] += a,
+                None => {}
             }
         }
     }
+    // The uncovered ones at the covered ones' mean radiance.
     for (o, r) in regions.iter_mut().enumerate() {
-        r.booked.far += far_peak[o] * uncovered[o];
+        if covered[o] > 0.0 {
+            r.booked.far[0] *= 1.0 + uncovered[o] / covered[o];
+        }
     }
 }
 

@@ -29,6 +29,11 @@ pub struct IrradianceInterval {
     /// evidence gives it, that added light widened by its spread on the corpus
     /// ([`EVIDENCE_SPREAD`]). Light no probe saw is not bounded by it.
     pub upper: f64,
+    /// The ledger's upper end ([`super::ledger`]): each clipped region holding
+    /// the most any one source the probes measured gives it, with no spread
+    /// (0 when no probe evidence was given).
+    #[serde(default)]
+    pub booked_upper: f64,
 }
 
 /// A quarter of the luminance power of `img` (a `w` x `h` panorama with per-row
@@ -49,6 +54,7 @@ pub(super) fn irradiance_interval(
     linear: &HdrImage,
     px: &Pixels,
     regions: &[Region],
+    ledger: &[super::LedgerEntry],
 ) -> IrradianceInterval {
     let estimate = mean_irradiance(out, &px.sa);
     let lower = mean_irradiance(linear, &px.sa);
@@ -59,9 +65,17 @@ pub(super) fn irradiance_interval(
             (most - r.fill.filled).max(0.0)
         })
         .sum();
+    // The region's added light where the evidence gives it less (the partially
+    // clipped pixels' measured channels) counts as it is.
+    let booked: f64 = ledger.iter().map(|e| (e.most - e.added).max(0.0)).sum();
     IrradianceInterval {
         lower,
         estimate,
         upper: lower + EVIDENCE_SPREAD * (estimate + more / 4.0 - lower),
+        booked_upper: if ledger.is_empty() {
+            0.0
+        } else {
+            estimate + booked / 4.0
+        },
     }
 }

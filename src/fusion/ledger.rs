@@ -16,10 +16,12 @@
 //!   by the radiance the probes saw over the region's solid angle), the probes'
 //!   radiance carried through a light's surface, a far source looked up in the
 //!   frame's own directions, or, where no light was placed, the least of the
-//!   estimate's power and the power the probes saw in the region's directions
-//!   (each probe's bright regions booked to the region nearest in direction;
-//!   where only one probe sees a source its measured power is taken as it is, an
-//!   assumption: no inverse-square extrapolation without a distance).
+//!   estimate's power and the power the nearest probe that saw light in the
+//!   region's directions measured there (each probe's bright regions booked to
+//!   the region nearest in direction). With no distance there is no
+//!   inverse-square extrapolation: the nearest probe's power is taken as it is,
+//!   an assumption (on the CI corpus scene, four probes saw one lamp with 20.6
+//!   to 46.0 units; the nearest one's 20.6 was nearest the frame's true 24).
 //!
 //! Enforced at the end over every path at once: each region pixel keeps what the
 //! frame measured plus a share of its added light, scaled down to the ceiling and
@@ -114,6 +116,17 @@ impl Evidence {
     }
 }
 
+/// Which of a region's pixels its budget holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Budgeted {
+    /// The fully clipped pixels (where nothing was measured); partially clipped
+    /// ones are held by their measured channels and the ceiling.
+    Full,
+    /// Every clipped pixel.
+    All,
+}
+
 /// The evidence a region's budget was taken from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -147,19 +160,32 @@ pub struct LedgerEntry {
     pub added: f64,
     /// Pixels the radiance ceiling lowered.
     pub ceiling_px: usize,
+    /// The most any one source of evidence gives the region (the probes' bright
+    /// regions in its directions, the placed lights' power, the carried or far
+    /// lookups): the region's share of the irradiance interval's upper end.
+    #[serde(default)]
+    pub most: f64,
 }
 
 /// Each region's evidence components, gathered before the fill from the lookups.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Booked {
-    /// Power the probes' radiance carries through a light's surface into the region.
-    pub carried: f64,
-    /// Power a far source looked up in the region's directions gives it.
-    pub far: f64,
+    /// Power the probes' radiance carries through a light's surface into the
+    /// region's fully and partially clipped pixels.
+    pub carried: [f64; 2],
+    /// Power a far source looked up in the region's directions gives its fully
+    /// and partially clipped pixels.
+    pub far: [f64; 2],
 }
 
 /// Each region's budget and the source it is booked to.
-pub(super) fn budgets(regions: &[Region], ev: &Evidence, max_angle_deg: f32) -> Vec<(Source, f64)> {
+pub(super) fn budgets(
+    regions: &[Region],
+    ev: &Evidence,
+    max_angle_deg: f32,
+    partial: bool,
+) -> Vec<(Source, f64, f64)> {
+    let part = |v: [f64; 2]| v[0] + if partial { v[1] } else { 0.0 };
     // Each probe's bright regions go to the clipped region nearest in direction.
     let cos_max = max_angle_deg.to_radians().cos();
     let probes = ev.seen.iter().map(|s| s.probe + 1).max().unwrap_or(0);
@@ -180,7 +206,9 @@ pub(super) fn budgets(regions: &[Region], ev: &Evidence, max_angle_deg: f32) -> 
         .iter()
         .zip(&per)
         .map(|(r, seen)| {
-            let probes = seen.iter().copied().fold(0.0f64, f64::max);
+            // The nearest probe that saw light there saw it most as the frame
+            // does (probes come nearest first).
+            let probes = seen.iter().copied().find(|&p| p > 0.0).unwrap_or(0.0);
             let target = if r.fill.target.is_finite() {
                 r.fill.target.max(0.0)
             } else {
@@ -200,15 +228,19 @@ pub(super) fn budgets(regions: &[Region], ev: &Evidence, max_angle_deg: f32) -> 
             } else {
                 (Source::None, 0.0)
             };
+            let mut most = best.1.max(probes);
             for (s, v) in [
-                (Source::Carried, r.booked.carried),
-                (Source::Far, r.booked.far),
+                (Source::Carried, part(r.booked.carried)),
+                (Source::Far, part(r.booked.far)),
             ] {
                 if v.is_finite() && v > best.1 {
                     best = (s, v);
                 }
+                if v.is_finite() {
+                    most = most.max(v);
+                }
             }
-            best
+            (best.0, best.1, most)
         })
         .collect()
 }
@@ -236,11 +268,12 @@ pub(super) fn apply(
     regions: &[Region],
     ev: &Evidence,
     max_angle_deg: f32,
-    enforce: bool,
+    enforce: Option<Budgeted>,
     out: &mut HdrImage,
 ) -> Vec<LedgerEntry> {
     let n = regions.len();
-    let budget = budgets(regions, ev, max_angle_deg);
+    let partial = enforce != Some(Budgeted::Full);
+    let budget = budgets(regions, ev, max_angle_deg, partial);
     let mut min_sa = vec![f64::INFINITY; n];
     for i in 0..px.w * px.h {
         if let Some(o) = px.region(i) {
@@ -255,13 +288,14 @@ pub(super) fn apply(
     let mut entries: Vec<LedgerEntry> = budget
         .iter()
         .enumerate()
-        .map(|(o, &(source, b))| LedgerEntry {
+        .map(|(o, &(source, b, most))| LedgerEntry {
             region: o,
             source,
             budget: b,
             filled: 0.0,
             added: 0.0,
             ceiling_px: 0,
+            most,
         })
         .collect();
     let added = |v: [f32; 3], s: [f32; 3]| (luminance(v) - luminance(s)).max(0.0) as f64;
@@ -281,7 +315,7 @@ pub(super) fn apply(
         }
         if g < 1.0 {
             entries[o].ceiling_px += 1;
-            if enforce {
+            if enforce.is_some() {
                 out.set(
                     x,
                     y,
@@ -290,21 +324,20 @@ pub(super) fn apply(
             }
         }
     }
-    if enforce {
-        // The budget, region by region: the light added where every channel
-        // clipped (nothing measured) scaled to it. Partially clipped pixels are
-        // held by their measured channels and the ceiling.
-        let mut full = vec![0.0f64; n];
+    if enforce.is_some() {
+        // The budget, region by region: the added light scaled to it.
+        let counted = |i: usize| partial || px.kinds[i] == Kind::Full;
+        let mut now = vec![0.0f64; n];
         for i in 0..px.w * px.h {
             let Some(o) = px.region(i) else { continue };
-            if px.kinds[i] == Kind::Full {
+            if counted(i) {
                 let (x, y) = (i % px.w, i / px.w);
-                full[o] += added(out.get(x, y), linear.get(x, y)) * px.solid_angle(i);
+                now[o] += added(out.get(x, y), linear.get(x, y)) * px.solid_angle(i);
             }
         }
         let f: Vec<f32> = entries
             .iter()
-            .zip(&full)
+            .zip(&now)
             .map(|(e, &a)| {
                 if a > e.budget {
                     (e.budget / a) as f32
@@ -315,7 +348,7 @@ pub(super) fn apply(
             .collect();
         for i in 0..px.w * px.h {
             let Some(o) = px.region(i) else { continue };
-            if f[o] < 1.0 && px.kinds[i] == Kind::Full {
+            if f[o] < 1.0 && counted(i) {
                 let (x, y) = (i % px.w, i / px.w);
                 let (v, s) = (out.get(x, y), linear.get(x, y));
                 out.set(

@@ -20,7 +20,7 @@ fn added_power(out: &HdrImage, lin: &HdrImage) -> f64 {
 
 fn ledger_on() -> FusionParams {
     FusionParams {
-        ledger: true,
+        ledger: Some(super::ledger::Budgeted::All),
         ..Default::default()
     }
 }
@@ -293,11 +293,11 @@ fn a_sun_one_pixel_wide_keeps_its_power_at_three_resolutions() {
             let added = added_power(&out, &lin);
             assert!(
                 (added - power).abs() < 0.05 * power,
-                "{w}x{h} ledger {}: {added} vs {power}",
+                "{w}x{h} ledger {:?}: {added} vs {power}",
                 p.ledger
             );
             assert_eq!(rep.blobs.len(), 1);
-            if p.ledger {
+            if p.ledger.is_some() {
                 irradiance.push(rep.irradiance.estimate);
             }
         }

@@ -115,9 +115,10 @@ pub struct FusionParams {
     pub max_move_ratio: f64,
     /// Hold every region's added light to the ledger's bounds ([`ledger`]): no
     /// pixel brighter than the probes measured, no region more power than the
-    /// probes measured of its sources. Without it the ledger is only reported.
+    /// probes measured of its sources (in its fully clipped pixels, or all of
+    /// them). Without it the ledger is only reported.
     #[serde(default)]
-    pub ledger: bool,
+    pub ledger: Option<ledger::Budgeted>,
 }
 
 fn default_max_move_ratio() -> f64 {
@@ -172,7 +173,7 @@ impl Default for FusionParams {
             min_far_cover: default_far_cover(),
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),
-            ledger: false,
+            ledger: None,
         }
     }
 }
@@ -428,7 +429,7 @@ pub fn fuse_with_lights(
             p.ledger,
             &mut out,
         );
-        if p.ledger {
+        if p.ledger.is_some() {
             for r in regions.iter_mut() {
                 r.fill.filled = 0.0;
             }
@@ -479,7 +480,8 @@ pub fn fuse_with_lights(
     }
     report.fallbacks = fallbacks;
     report.unmatched = report.blobs.iter().filter(|b| !b.matched).count();
-    report.irradiance = interval::irradiance_interval(&out, frame.radiance, &px, &regions);
+    report.irradiance =
+        interval::irradiance_interval(&out, frame.radiance, &px, &regions, &report.ledger);
     report.sdr_fraction = px.mask.iter().filter(|&&m| !m).count() as f32 / (w * h).max(1) as f32;
     Ok((out, report))
 }
