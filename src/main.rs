@@ -41,7 +41,7 @@ struct WarpOpts {
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().detector_threshold)]
     detector_threshold: f64,
     /// Gaussian blur (pixels) before detection, against sensor noise.
-    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().blur_sigma)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::warp::WarpParams::default().blur_sigma)]
     blur_sigma: f32,
     /// Candidates per face when matching by pose.
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().pose_candidates)]
@@ -50,7 +50,7 @@ struct WarpOpts {
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().flann_checks)]
     flann_checks: i32,
     /// Lowe ratio-test threshold.
-    #[arg(long, default_value_t = 0.7)]
+    #[arg(long, value_parser = parse_finite, default_value_t = 0.7)]
     ratio: f32,
     /// Robust homography estimator.
     #[arg(long, value_enum, default_value_t = Estimator::Ransac)]
@@ -71,7 +71,7 @@ struct WarpOpts {
     #[arg(long, value_enum, default_value_t = ProbeTonemap::Camera)]
     probe_tonemap: ProbeTonemap,
     /// Half-extent of matched face images (1 = the 90° face; more adds a margin).
-    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().face_extent)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::warp::WarpParams::default().face_extent)]
     face_extent: f32,
     /// Cube face size (default: a quarter of the panorama width, at most
     /// `--max-face-size`).
@@ -114,10 +114,10 @@ struct FlowOpts {
     #[arg(long, value_enum, default_value_t = lumiprobe::flow::dense::FlowPreset::Fast)]
     flow_preset: lumiprobe::flow::dense::FlowPreset,
     /// Weight of the graph cut's seam cost.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().lambda)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().lambda)]
     lambda: f32,
     /// Data cost of the SDR label (thesis: 500).
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().sdr_cost)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().sdr_cost)]
     sdr_cost: f32,
     /// Graph-cut moves.
     #[arg(long, value_enum, default_value_t = lumiprobe::flow::graphcut::Optimizer::Expansion)]
@@ -135,24 +135,24 @@ struct FlowOpts {
     #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_radius)]
     dc_radius: usize,
     /// Seam-cost weight where the SDR frame measured (did not clip), relative to clipped regions
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_measured)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_measured)]
     seam_measured: f32,
     /// Weight of the colour term where the SDR frame clipped (a label darker than
     /// the clip level contradicts the frame there).
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_dc_weight)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_dc_weight)]
     clipped_dc_weight: f32,
     /// Constant cost of a label change between pixels where the SDR frame clipped.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_potts)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().clipped_potts)]
     clipped_potts: f32,
     /// Weight of the log-exposure seam cost where the SDR frame clipped.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_clipped)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().seam_clipped)]
     seam_clipped: f32,
     /// Let the graph cut relabel measured (unclipped) pixels too; by default they
     /// keep the label their data cost prefers and the cut decides only clipped ones.
     #[arg(long)]
     cut_measured: bool,
     /// Weight of the colour term against the confidence and distance terms.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_weight)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().dc_weight)]
     dc_weight: f32,
     /// Widest frame the flow method processes at full resolution; wider frames run
     /// flow and graph cut at 1/k size (0 = always full resolution).
@@ -160,14 +160,14 @@ struct FlowOpts {
     flow_work_width: usize,
     /// Largest angle (degrees) between the probes' directions to a clipped light for
     /// it to count as distant and keep the rotation's alignment (0 = off).
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().distant_light_deg)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().distant_light_deg)]
     distant_light_deg: f32,
     /// How far around a clipped light (degrees of longitude) its light is looked for.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_ring_deg)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_ring_deg)]
     light_ring_deg: f32,
     /// Hybrid: how far (degrees of longitude) from a clipped light the warp stage may
     /// have moved it; a distant light there is put back where the rotation puts it.
-    #[arg(long, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_reach_deg)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::flow::method::FlowMethodParams::default().light_reach_deg)]
     light_reach_deg: f32,
 }
 
@@ -389,13 +389,13 @@ enum Cmd {
         #[arg(long, value_parser = parse_vec3, default_value = "0,-0.35,-1", allow_hyphen_values = true)]
         view: [f32; 3],
         /// Vertical field of view in degrees.
-        #[arg(long, default_value_t = 35.0)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 35.0)]
         fov: f32,
         /// Transparent background instead of the probe.
         #[arg(long)]
         transparent: bool,
         /// Exposure of the PNG in EV.
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         exposure: f32,
     },
     /// Composite a glTF model, lit by each frame's probe, over the SDR frames (the
@@ -413,10 +413,10 @@ enum Cmd {
         #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
         at: [f32; 3],
         /// Model size: radius of its bounding sphere in metres.
-        #[arg(long, default_value_t = 0.25)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.25)]
         radius: f32,
         /// Turn of the model about the world's up axis, degrees.
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         yaw: f32,
         /// Output folder (frame PNGs, composite.mp4).
         #[arg(long)]
@@ -459,7 +459,7 @@ enum Cmd {
         #[arg(long, default_value_t = 256)]
         view_size: usize,
         /// Field of view of each view, degrees.
-        #[arg(long, default_value_t = 120.0)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 120.0)]
         fov: f32,
         /// Read the COLMAP model already in WORK instead of running COLMAP.
         #[arg(long)]
@@ -479,10 +479,10 @@ enum Cmd {
         /// Output image, same kind as the input.
         output: PathBuf,
         /// Lens field of view in degrees (at least 180).
-        #[arg(long, default_value_t = 195.0)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 195.0)]
         fov: f32,
         /// Width in degrees of the cross-fade where both lenses see.
-        #[arg(long, default_value_t = lumiprobe::capture::fisheye::DEFAULT_BLEND_DEG)]
+        #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::capture::fisheye::DEFAULT_BLEND_DEG)]
         blend: f32,
         /// Output size WxH (default: the input's size).
         #[arg(long, value_parser = parse_size)]
@@ -518,7 +518,7 @@ enum Cmd {
         #[arg(long, value_enum, default_value_t = Operator::Reinhard05)]
         operator: Operator,
         /// Exposure in EV for `exposure`.
-        #[arg(long, default_value_t = 0.0)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         ev: f32,
     },
     /// Cut a panorama into six cube faces (`<stem>_<face>.<ext>`).
@@ -539,13 +539,13 @@ enum Cmd {
         /// Output HDR panorama.
         output: PathBuf,
         /// Yaw (right positive).
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         yaw: f32,
         /// Pitch (up positive).
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         pitch: f32,
         /// Roll (clockwise positive).
-        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         roll: f32,
     },
 }
@@ -632,6 +632,19 @@ fn parse_shard(s: &str) -> std::result::Result<(usize, usize), String> {
     Ok((i, n))
 }
 
+/// A number option that must be finite (no NaN or infinity).
+fn parse_finite(s: &str) -> std::result::Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s:?} is not a finite number"))
+    }
+}
+
 fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -642,8 +655,9 @@ fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
     let h: usize = h
         .parse()
         .map_err(|_| format!("height {h:?} is not a number"))?;
-    if w < 8 || h < 4 || w > 65536 || h > 32768 {
-        return Err(format!("size {w}x{h} is outside 8x4 .. 65536x32768"));
+    let (mw, mh) = lumiprobe::scene::MAX_PANORAMA;
+    if w < 8 || h < 4 || w > mw || h > mh {
+        return Err(format!("size {w}x{h} is outside 8x4 .. {mw}x{mh}"));
     }
     Ok((w, h))
 }

@@ -7,7 +7,7 @@ orientations (a quarter of the ground truth's luminance power) is compared with
 the report's `irradiance` {lower, estimate, upper}. Frames the corpus summary
 flags as unanswerable (light no probe saw) are counted apart.
 
-    /usr/bin/python3 scripts/corpus/interval_check.py OUT CORPUS_DIR [SHARED_DIR]
+    /usr/bin/python3 scripts/corpus/interval_check.py OUT CORPUS_DIR [SHARED_DIR] [--upper booked_upper]
 
 A tool for reading results, not part of the product.
 """
@@ -37,7 +37,14 @@ def mean_irradiance(path):
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__)
-    out, roots = sys.argv[1], sys.argv[2:]
+    args = sys.argv[1:]
+    # --upper booked_upper: check the ledger's upper end instead.
+    field = "upper"
+    if "--upper" in args:
+        k = args.index("--upper")
+        field = args[k + 1]
+        del args[k : k + 2]
+    out, roots = args[0], args[1:]
     scene_dirs, split = {}, {}
     for root in roots:
         cj = os.path.join(root, "corpus.json")
@@ -66,7 +73,7 @@ def main():
             if t < iv["lower"] * 0.98:
                 c[1] += 1
                 below += 1
-            elif t > iv["upper"] * 1.02:
+            elif t > iv.get(field, 0.0) * 1.02:
                 c[2] += 1
                 above += 1
             else:

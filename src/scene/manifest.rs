@@ -425,10 +425,13 @@ impl Manifest {
                 let parsed = s
                     .split_once(['x', 'X'])
                     .and_then(|(w, h)| Some((w.trim().parse().ok()?, h.trim().parse().ok()?)))
-                    .filter(|&(w, h): &(usize, usize)| w >= 8 && h >= 4 && w <= 16384 && h <= 8192);
+                    .filter(|&(w, h): &(usize, usize)| {
+                        w >= 8 && h >= 4 && w <= super::MAX_PANORAMA.0 && h <= super::MAX_PANORAMA.1
+                    });
                 Some(parsed.ok_or_else(|| {
+                    let (mw, mh) = super::MAX_PANORAMA;
                     bad(format!(
-                        "output.size: expected WxH between 8x4 and 16384x8192, got {s:?}"
+                        "output.size: expected WxH between 8x4 and {mw}x{mh}, got {s:?}"
                     ))
                 })?)
             }

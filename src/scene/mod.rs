@@ -4,6 +4,10 @@
 
 pub mod manifest;
 
+/// The largest panorama lumiprobe works at (width, height): 16384 x 8192 is
+/// 1.5 GiB as float RGB, and every per-pixel buffer of a method is sized by it.
+pub const MAX_PANORAMA: (usize, usize) = (16384, 8192);
+
 use crate::error::{Error, Result};
 use crate::sphere::orthonormalize;
 use crate::tonemap::Response;
