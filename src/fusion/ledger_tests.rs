@@ -262,11 +262,7 @@ fn sun_frame(
     });
     let probe_sa = row_solid_angles(probe.0, probe.1)[(0.25 * probe.1 as f64) as usize] as f64;
     let seen = super::ledger::ProbeEvidence {
-        lights: vec![super::lights::Light {
-            dir: pixel_to_dir(sx, sy, w, h),
-            power,
-            ..Default::default()
-        }],
+        cells: vec![(pixel_to_dir(sx, sy, w, h), power)],
         peak: [(power / probe_sa) as f32 + 1.0; 3],
         size: probe,
     };
@@ -307,4 +303,44 @@ fn a_sun_one_pixel_wide_keeps_its_power_at_three_resolutions() {
         (a - b).abs() < 0.02 * b,
         "irradiance {a} at 128x64, {b} at 256x128"
     );
+}
+
+#[test]
+fn a_probes_light_is_gathered_in_cells_that_keep_its_power_and_direction() {
+    let (w, h) = (128, 64);
+    // A window 20 x 10 pixels at 50 units and a one-pixel lamp at 4000.
+    let img = HdrImage::from_fn(w, h, |x, y| {
+        if (30..50).contains(&x) && (20..30).contains(&y) {
+            [50.0; 3]
+        } else if (x, y) == (100, 15) {
+            [4000.0; 3]
+        } else {
+            [0.3; 3]
+        }
+    });
+    let pose = crate::scene::Pose {
+        position: glam::Vec3::ZERO,
+        world_from_camera: glam::Mat3::IDENTITY,
+    };
+    let pe = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
+    let sa = row_solid_angles(w, h);
+    let window: f64 = (20..30).map(|y| 20.0 * 49.0 * sa[y] as f64).sum();
+    let lamp = 3999.0 * sa[15] as f64;
+    let total: f64 = pe.cells.iter().map(|c| c.1).sum();
+    assert!(
+        (total - window - lamp).abs() < 1e-6 * total,
+        "{total} vs {}",
+        window + lamp
+    );
+    // The window spans several cells; the lamp is one cell, where it is.
+    assert!(pe.cells.len() > 4);
+    let d = pixel_to_dir(100, 15, w, h);
+    let at_lamp: f64 = pe
+        .cells
+        .iter()
+        .filter(|c| c.0.dot(d) > 0.9999)
+        .map(|c| c.1)
+        .sum();
+    assert!((at_lamp - lamp).abs() < 1e-6 * lamp);
+    assert_eq!(pe.peak, [4000.0; 3]);
 }

@@ -673,17 +673,13 @@ pub fn predict_frame(
             floor: white,
             near,
         });
-        // What the probes measured, for the ledger: each probe's bright regions
-        // and peak found once.
+        // What the probes measured, for the ledger: each probe's light above
+        // the white point and its peak, found once.
         let probe_ev: Vec<Arc<ProbeEvidence>> = used
             .iter()
             .zip(&probes)
             .take(params.fusion.far_probes.max(2))
-            .map(|(&u, pp)| {
-                pairs.probe(u, || {
-                    ProbeEvidence::new(&pp.image, &pp.pose, white, params.fusion.light_join_deg)
-                })
-            })
+            .map(|(&u, pp)| pairs.probe(u, || ProbeEvidence::new(&pp.image, &pp.pose, white)))
             .collect();
         let refs: Vec<&ProbeEvidence> = probe_ev.iter().map(|e| &**e).collect();
         let evidence = Evidence::at_frame(&refs, &frame.pose, w, h);
