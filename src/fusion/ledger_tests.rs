@@ -126,9 +126,12 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
 /// A random frame: grey with `lamps` square regions fully clipped or clipped in
 /// some channels, an estimate with random (possibly wildly coloured) light
 /// there, and random probe evidence.
+/// A square region: corner (x, y), half-size, its codes, the estimate there.
+type Lamp = (usize, usize, usize, [u8; 3], [f32; 3]);
+
 #[derive(Debug, Clone)]
 struct Case {
-    lamps: Vec<(usize, usize, usize, [u8; 3], [f32; 3])>,
+    lamps: Vec<Lamp>,
     peak: [f32; 3],
     seen: Vec<(usize, usize, f64)>,
 }
