@@ -269,6 +269,10 @@ enum Cmd {
         /// Method (the same default as `run`).
         #[arg(long, value_enum, default_value_t = Method::Fusion)]
         method: Method,
+        /// A setting as KEY=VALUE, as for `corpus` (`fusion.ledger="full"`);
+        /// repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         /// Error against run time: vary the settings that trade time for quality
         /// (method, size 256..2048 wide, yaw rotations, detector, ratio, flow preset,
         /// graph-cut cycles, smoothness, fusion base) one at a time around the given
@@ -856,6 +860,7 @@ fn real_main(cli: Cli) -> Result<()> {
             repeats,
             json,
             method,
+            set,
             sweep,
             report,
             point_json,
@@ -864,7 +869,7 @@ fn real_main(cli: Cli) -> Result<()> {
         } => {
             let scene_dir = scene;
             let scene = Scene::load(&scene_dir)?;
-            let params = run_params(method, size, &warp, &flow);
+            let params = run_params(method, size, &warp, &flow).with_settings(&set)?;
             if let Some(js) = point_json {
                 let p: lumiprobe::pipeline::RunParams = serde_json::from_str(&js)
                     .map_err(|e| Error::Invalid(format!("--point-json: {e}")))?;
