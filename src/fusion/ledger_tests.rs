@@ -347,3 +347,67 @@ fn a_probes_light_is_gathered_in_cells_that_keep_its_power_and_direction() {
     assert!((at_lamp - lamp).abs() < 1e-6 * lamp);
     assert_eq!(pe.peak, [4000.0; 3]);
 }
+
+#[test]
+fn a_source_one_probe_sees_where_the_frame_measured_a_wall_adds_nothing_there() {
+    // One probe saw a sun through a near opening at (90, 14); the frame, from
+    // elsewhere, sees a wall there (measured, grey) and a clipped lamp at
+    // (20, 20). The estimate copied the probe's sun onto the wall.
+    let (w, h) = (128, 64);
+    let mut codes = vec![100u8; w * h * 3];
+    let lamp = |x: usize, y: usize| (19..=21).contains(&x) && (19..=21).contains(&y);
+    let lin = HdrImage::from_fn(w, h, |x, y| {
+        if lamp(x, y) {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255; 3]);
+            [1.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (x, y) == (90, 14) {
+            [5e4; 3]
+        } else if lamp(x, y) {
+            [30.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let sa = row_solid_angles(w, h);
+    let ev = Evidence {
+        peak: [5e4; 3],
+        seen: vec![
+            SeenLight {
+                dir: pixel_to_dir(90, 14, w, h),
+                power: 5e4 * sa[14] as f64,
+                probe: 0,
+            },
+            SeenLight {
+                dir: pixel_to_dir(20, 20, w, h),
+                power: 29.0 * 9.0 * sa[20] as f64,
+                probe: 1,
+            },
+        ],
+    };
+    let frame = Measured::new(&sdr, &lin, 1.0);
+    for p in [FusionParams::default(), ledger_on()] {
+        let (out, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &p).unwrap();
+        // The wall stays as the frame measured it.
+        assert_eq!(out.get(90, 14), lin.get(90, 14));
+        // The lamp keeps its power, booked to what the probes saw there: the
+        // sun, 90 degrees away, is not booked to it.
+        assert_eq!(rep.ledger.len(), 1);
+        let lamp_power = 29.0 * 9.0 * sa[20] as f64;
+        assert!(
+            rep.ledger[0].budget < 1.01 * lamp_power,
+            "{:?}",
+            rep.ledger[0]
+        );
+        let added = added_power(&out, &lin);
+        assert!(
+            (added - lamp_power).abs() < 0.05 * lamp_power,
+            "{added} vs {lamp_power}"
+        );
+    }
+}
