@@ -527,10 +527,18 @@ pub(super) fn fill(
     fill_partial(frame, estimate, px, regions, &look, out);
     promote(frame, estimate, px, regions, out);
     fill_full(frame, estimate, px, regions, &look, out);
+    held(px, regions, frame.white, out);
+}
+
+/// Each region's `fill.filled`: the power above `white` its pixels hold in `out`.
+pub(super) fn held(px: &Pixels, regions: &mut [Region], white: f32, out: &HdrImage) {
+    for r in regions.iter_mut() {
+        r.fill.filled = 0.0;
+    }
     for (i, &l) in px.lab.iter().enumerate() {
         if l != u32::MAX {
             regions[l as usize].fill.filled +=
-                (luminance(out.get(i % px.w, i / px.w)) as f64 - frame.white as f64).max(0.0)
+                (luminance(out.get(i % px.w, i / px.w)) as f64 - white as f64).max(0.0)
                     * px.solid_angle(i);
         }
     }

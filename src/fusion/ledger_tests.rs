@@ -84,18 +84,7 @@ fn a_partly_clipped_pixel_is_never_brighter_than_the_probes_measured() {
 #[test]
 fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
     let (w, h) = (64, 32);
-    let (sdr, lin) = {
-        let mut codes = vec![100u8; w * h * 3];
-        let lin = HdrImage::from_fn(w, h, |x, y| {
-            if (10..=12).contains(&x) && (10..=12).contains(&y) {
-                codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255; 3]);
-                [1.0; 3]
-            } else {
-                [0.2; 3]
-            }
-        });
-        (SdrImage::from_vec(w, h, codes).unwrap(), lin)
-    };
+    let (sdr, lin) = super::tests::frame_with_lamp(w, h, (11, 11), 1);
     // The estimate invents a lamp there; the probes saw their only light on the
     // other side of the sphere.
     let est = HdrImage::from_fn(w, h, |x, y| {
@@ -354,17 +343,8 @@ fn a_source_one_probe_sees_where_the_frame_measured_a_wall_adds_nothing_there() 
     // elsewhere, sees a wall there (measured, grey) and a clipped lamp at
     // (20, 20). The estimate copied the probe's sun onto the wall.
     let (w, h) = (128, 64);
-    let mut codes = vec![100u8; w * h * 3];
     let lamp = |x: usize, y: usize| (19..=21).contains(&x) && (19..=21).contains(&y);
-    let lin = HdrImage::from_fn(w, h, |x, y| {
-        if lamp(x, y) {
-            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255; 3]);
-            [1.0; 3]
-        } else {
-            [0.2; 3]
-        }
-    });
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = super::tests::frame_with_lamp(w, h, (20, 20), 1);
     let est = HdrImage::from_fn(w, h, |x, y| {
         if (x, y) == (90, 14) {
             [5e4; 3]

@@ -430,16 +430,7 @@ pub fn fuse_with_lights(
             &mut out,
         );
         if p.ledger.is_some() {
-            for r in regions.iter_mut() {
-                r.fill.filled = 0.0;
-            }
-            for (i, &l) in px.lab.iter().enumerate() {
-                if l != u32::MAX {
-                    let v = crate::image::luminance(out.get(i % w, i / w)) as f64;
-                    regions[l as usize].fill.filled +=
-                        (v - white as f64).max(0.0) * px.solid_angle(i);
-                }
-            }
+            fill::held(&px, &mut regions, white, &out);
         }
         l
     });

@@ -3,7 +3,12 @@ use super::*;
 use crate::image::luminance;
 use crate::sphere::row_solid_angles;
 
-fn frame_with_lamp(w: usize, h: usize, lamp: (usize, usize), r: usize) -> (SdrImage, HdrImage) {
+pub(super) fn frame_with_lamp(
+    w: usize,
+    h: usize,
+    lamp: (usize, usize),
+    r: usize,
+) -> (SdrImage, HdrImage) {
     frame_with_lamps(w, h, &[lamp], r)
 }
 
