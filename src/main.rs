@@ -230,6 +230,11 @@ enum Cmd {
         /// PIZ writes 3x faster at 1.2x ZIP's size; none is the fastest.
         #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
         exr_compression: lumiprobe::image::io::ExrCompression,
+        /// A setting without a flag of its own, as KEY=VALUE (a path into the
+        /// settings of `report.json`), e.g. `fusion.walk.mode=two_sided` or
+        /// `fusion.ledger=full`; repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
         #[command(flatten)]
         warp: WarpOpts,
         #[command(flatten)]
@@ -725,6 +730,7 @@ fn real_main(cli: Cli) -> Result<()> {
             exr_compression,
             dry_run,
             shard,
+            set,
             warp,
             flow,
         } => {
@@ -771,7 +777,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 }
                 scene.path_gain = est.gain;
             }
-            let mut params = run_params(method, size, &warp, &flow);
+            let mut params = run_params(method, size, &warp, &flow).with_settings(&set)?;
             params.exr_compression = exr_compression;
             if dry_run {
                 let pending = pipeline::pending_frames(&scene, &out, &params)?;

@@ -28,6 +28,7 @@
 //! then to the region's budget. Light whose source cannot be named is not added.
 
 use super::regions::{Kind, Pixels, Region};
+use super::walk::Mend;
 use crate::image::{luminance, HdrImage};
 use crate::scene::Pose;
 use crate::sphere::{pixel_to_dir, row_solid_angles};
@@ -113,6 +114,9 @@ pub struct Evidence {
     pub peak: [f32; 3],
     /// The probes' bright regions.
     pub seen: Vec<SeenLight>,
+    /// Regions the walk holds to what the neighbouring frames carry to them
+    /// ([`super::walk`]).
+    pub walk: Vec<Mend>,
 }
 
 impl Evidence {
@@ -198,6 +202,23 @@ pub struct LedgerEntry {
     /// lookups): the region's share of the irradiance interval's upper end.
     #[serde(default)]
     pub most: f64,
+    /// Direction of the region in the frame's axes (unit), for following it
+    /// along the walk.
+    #[serde(default)]
+    pub dir: [f32; 3],
+    /// The power the walk held the region to ([`super::walk`]), and what it held
+    /// before (`added` is after).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub walk: Option<WalkHeld>,
+}
+
+/// A region the walk held.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WalkHeld {
+    /// The power its neighbours carry to it.
+    pub power: f64,
+    /// What the region held added before.
+    pub before: f64,
 }
 
 /// Each region's evidence components, gathered before the fill from the lookups.
@@ -330,6 +351,8 @@ pub(super) fn apply(
             added: 0.0,
             ceiling_px: 0,
             most,
+            dir: regions[o].dir.normalize_or_zero().to_array(),
+            walk: None,
         })
         .collect();
     let added = |v: [f32; 3], s: [f32; 3]| (luminance(v) - luminance(s)).max(0.0) as f64;
@@ -461,4 +484,51 @@ pub(super) fn apply(
         entries[o].added += added(out.get(x, y), linear.get(x, y)) * px.solid_angle(i);
     }
     entries
+}
+
+/// Holds the regions the walk names to the power their neighbours carry to
+/// them: each region's added light (every clipped pixel, over what the frame
+/// measured) scaled down to that power. Never adds light.
+pub(super) fn hold_walk(
+    linear: &HdrImage,
+    px: &Pixels,
+    mends: &[Mend],
+    entries: &mut [LedgerEntry],
+    out: &mut HdrImage,
+) {
+    let n = entries.len();
+    let mut f = vec![1.0f32; n];
+    let mut held = vec![None; n];
+    for m in mends {
+        let Some(e) = entries.get(m.region) else {
+            continue;
+        };
+        if m.power.is_finite() && m.power >= 0.0 && e.added > m.power {
+            f[m.region] = (m.power / e.added) as f32;
+            held[m.region] = Some(WalkHeld {
+                power: m.power,
+                before: e.added,
+            });
+        }
+    }
+    if held.iter().all(Option::is_none) {
+        return;
+    }
+    let mut now = vec![0.0f64; n];
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        let (x, y) = (i % px.w, i / px.w);
+        let (mut v, s) = (out.get(x, y), linear.get(x, y));
+        if f[o] < 1.0 {
+            v = std::array::from_fn(|k| s[k] + f[o] * (v[k] - s[k]).max(0.0));
+            out.set(x, y, v);
+        }
+        now[o] += (luminance(v) - luminance(s)).max(0.0) as f64 * px.solid_angle(i);
+    }
+    for (o, e) in entries.iter_mut().enumerate() {
+        if held[o].is_some() {
+            e.added = now[o];
+            e.walk = held[o];
+        }
+    }
 }

@@ -1,6 +1,7 @@
 //! The ledger's invariants ([`super::ledger`]), with the answer known and as
 //! properties over random frames, estimates and probe evidence.
 use super::ledger::{Evidence, SeenLight, Source};
+use super::tests::{frame_with_lamp, frame_with_lamps};
 use super::*;
 use crate::image::luminance;
 use crate::sphere::{pixel_to_dir, row_solid_angles};
@@ -61,6 +62,7 @@ fn a_partly_clipped_pixel_is_never_brighter_than_the_probes_measured() {
             power: 0.05,
             probe: 0,
         }],
+        walk: Vec::new(),
     };
     let frame = Measured::new(&sdr, &lin, 1.0);
     let max_red = |img: &HdrImage| img.pixels().map(|p| p[0]).fold(0.0f32, f32::max);
@@ -101,6 +103,7 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
             power: 2.0,
             probe: 0,
         }],
+        walk: Vec::new(),
     };
     let frame = Measured::new(&sdr, &lin, 1.0);
     let (off, _) =
@@ -171,6 +174,7 @@ fn build(c: &Case) -> (SdrImage, HdrImage, HdrImage, Evidence) {
                 probe: k % 2,
             })
             .collect(),
+        walk: Vec::new(),
     };
     (SdrImage::from_vec(W, H, codes).unwrap(), lin, est, ev)
 }
@@ -369,6 +373,7 @@ fn a_source_one_probe_sees_where_the_frame_measured_a_wall_adds_nothing_there() 
                 probe: 1,
             },
         ],
+        walk: Vec::new(),
     };
     let frame = Measured::new(&sdr, &lin, 1.0);
     for p in [FusionParams::default(), ledger_on()] {
@@ -389,5 +394,128 @@ fn a_source_one_probe_sees_where_the_frame_measured_a_wall_adds_nothing_there() 
             (added - lamp_power).abs() < 0.05 * lamp_power,
             "{added} vs {lamp_power}"
         );
+    }
+}
+
+/// Fuses a walk of frames (identity poses, so frame axes are world axes) and
+/// returns each frame's output and report, the walk holds given.
+fn fuse_walk(
+    frames: &[(SdrImage, HdrImage, HdrImage)],
+    ev: &Evidence,
+    holds: &[Vec<super::walk::Mend>],
+) -> Vec<(HdrImage, FusionReport)> {
+    frames
+        .iter()
+        .zip(holds)
+        .map(|((sdr, lin, est), h)| {
+            let ev = Evidence {
+                walk: h.clone(),
+                ..ev.clone()
+            };
+            let frame = Measured::new(sdr, lin, 1.0);
+            fuse_with_lights(&frame, est, &[], None, Some(&ev), &FusionParams::default()).unwrap()
+        })
+        .collect()
+}
+
+fn walk_regions(reports: &[(HdrImage, FusionReport)]) -> Vec<Vec<super::walk::WalkRegion>> {
+    reports
+        .iter()
+        .map(|(_, r)| {
+            r.ledger
+                .iter()
+                .map(|e| super::walk::WalkRegion {
+                    region: e.region,
+                    dir: glam::Vec3::from_array(e.dir),
+                    solid_angle: r.blobs[e.region].solid_angle_sr,
+                    added: e.walk.map_or(e.added, |w| w.before),
+                    supported: 0.0,
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn one_wrong_frame_in_a_walk_is_mended_by_its_neighbours_and_a_lamp_coming_into_view_is_not() {
+    use super::walk::{mends, WalkMode, WalkParams};
+    let (w, h) = (64, 32);
+    // A lamp of radiance 30 drifting one pixel per frame (5.6 degrees); it comes
+    // into view at frame 2. The estimate of frame 4 holds 40x the lamp's light.
+    let n = 8;
+    let walk: Vec<(SdrImage, HdrImage, HdrImage)> = (0..n)
+        .map(|t| {
+            let lamp = (16 + t, 12);
+            if t < 2 {
+                let (sdr, lin) = frame_with_lamps(w, h, &[], 1);
+                return (sdr, lin.clone(), lin);
+            }
+            let (sdr, lin) = frame_with_lamp(w, h, lamp, 1);
+            let v = if t == 4 { 1200.0 } else { 30.0 };
+            let est = HdrImage::from_fn(w, h, |x, y| {
+                if x.abs_diff(lamp.0) <= 1 && y.abs_diff(lamp.1) <= 1 {
+                    [v; 3]
+                } else {
+                    [0.2; 3]
+                }
+            });
+            (sdr, lin, est)
+        })
+        .collect();
+    let truth = |t: usize| {
+        let (sdr, lin, _) = &walk[t];
+        let est = HdrImage::from_fn(w, h, |x, y| {
+            if x.abs_diff(16 + t) <= 1 && y.abs_diff(12) <= 1 {
+                [30.0; 3]
+            } else {
+                [0.2; 3]
+            }
+        });
+        (sdr.clone(), lin.clone(), est)
+    };
+    let ev = Evidence {
+        peak: [5e3; 3],
+        seen: vec![SeenLight {
+            dir: pixel_to_dir(20, 12, w, h),
+            power: 10.0,
+            probe: 0,
+        }],
+        walk: Vec::new(),
+    };
+    let none = vec![Vec::new(); n];
+    let first = fuse_walk(&walk, &ev, &none);
+    let wrong = added_power(&first[4].0, &walk[4].1);
+    let right = {
+        let t = fuse_walk(&[truth(4)], &ev, &none[..1]);
+        added_power(&t[0].0, &walk[4].1)
+    };
+    assert!(wrong > 20.0 * right, "the wrong frame: {wrong} vs {right}");
+    for mode in [WalkMode::TwoSided, WalkMode::Causal] {
+        let p = WalkParams {
+            mode,
+            ..WalkParams::default()
+        };
+        let holds = mends(&walk_regions(&first), &p);
+        // Only the wrong frame is held; the lamp entering at frame 2 is not.
+        for (t, h) in holds.iter().enumerate() {
+            assert_eq!(h.is_empty(), t != 4, "{mode:?} frame {t}: {h:?}");
+        }
+        let second = fuse_walk(&walk, &ev, &holds);
+        let mended = added_power(&second[4].0, &walk[4].1);
+        // The neighbours carry the lamp's power: within 5% of the frame fused
+        // with a right estimate.
+        assert!(
+            (mended / right - 1.0).abs() < 0.05,
+            "{mode:?}: mended {mended} right {right}"
+        );
+        assert!(second[4].1.ledger.iter().any(|e| e.walk.is_some()));
+        // The entering lamp has its power at once (no lag): frame 2 as fused alone.
+        let alone = fuse_walk(&[truth(2)], &ev, &none[..1]);
+        let at2 = added_power(&second[2].0, &walk[2].1);
+        assert!((at2 / added_power(&alone[0].0, &walk[2].1) - 1.0).abs() < 1e-6);
+        // Every other frame is as fused alone.
+        for t in (0..n).filter(|&t| t != 4) {
+            assert!(second[t].0 == first[t].0, "{mode:?} frame {t} changed");
+        }
     }
 }

@@ -25,6 +25,7 @@ mod interval;
 pub mod ledger;
 pub mod lights;
 mod regions;
+pub mod walk;
 
 pub use edges::{has_plateau, sharpen_edge};
 pub use interval::IrradianceInterval;
@@ -119,6 +120,10 @@ pub struct FusionParams {
     /// them). Without it the ledger is only reported.
     #[serde(default)]
     pub ledger: Option<ledger::Budgeted>,
+    /// The walk as one sequence ([`walk`]): a region's jump in power that its
+    /// neighbouring frames do not show is held to what they carry to it.
+    #[serde(default)]
+    pub walk: walk::WalkParams,
 }
 
 fn default_max_move_ratio() -> f64 {
@@ -174,6 +179,7 @@ impl Default for FusionParams {
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),
             ledger: None,
+            walk: walk::WalkParams::default(),
         }
     }
 }
@@ -420,7 +426,7 @@ pub fn fuse_with_lights(
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);
     let ledger = evidence.map(|ev| {
-        let l = ledger::apply(
+        let mut l = ledger::apply(
             frame.radiance,
             &px,
             &regions,
@@ -429,7 +435,8 @@ pub fn fuse_with_lights(
             p.ledger,
             &mut out,
         );
-        if p.ledger.is_some() {
+        ledger::hold_walk(frame.radiance, &px, &ev.walk, &mut l, &mut out);
+        if p.ledger.is_some() || !ev.walk.is_empty() {
             fill::held(&px, &mut regions, white, &out);
         }
         l

@@ -13,7 +13,7 @@ pub(super) fn frame_with_lamp(
 }
 
 /// A grey frame (0.2) with square clipped lamps of half-width `r` at `lamps`.
-fn frame_with_lamps(
+pub(super) fn frame_with_lamps(
     w: usize,
     h: usize,
     lamps: &[(usize, usize)],

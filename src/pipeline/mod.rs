@@ -11,6 +11,7 @@ pub mod plan;
 pub mod probe_set;
 pub mod render_eval;
 pub mod sweep;
+mod walk;
 
 use crate::error::{Error, Result};
 use crate::flow::method::{
@@ -18,7 +19,9 @@ use crate::flow::method::{
 };
 use crate::fusion::lights::{pair_lights, PairLights};
 use crate::fusion::{
-    fuse_with_lights, Evidence, FusionParams, FusionReport, Measured, ProbeEvidence,
+    fuse_with_lights,
+    walk::{Mend, WalkMode},
+    Evidence, FusionParams, FusionReport, Measured, ProbeEvidence,
 };
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::{distance_m, Frame, Scene};
@@ -422,38 +425,40 @@ fn run_named(
         get: &get_probe,
         pairs: &pairs,
     };
-    let compute = |frame: &Frame, used: &[usize], fp: &str| -> Result<FrameRecord> {
-        let probe_meta = &scene.probes[used[0]];
-        let out = out_dir.join(format!("{}.exr", frame.id));
-        let side = out_dir.join(format!("{}.json", frame.id));
-        let sdr = load_frame(frame, params.size)?;
-        let mut repaired = 0;
-        for &u in used {
-            repaired += get_probe(u)?.1;
-        }
-        let t = Instant::now();
-        let lin = linearize(&sdr, scene);
-        let (img, warp_report, flow_report, fusion_report) =
-            predict_frame(scene, frame, &sdr, &lin, used, access, params)?;
-        let total_ms = t.elapsed().as_secs_f64() * 1e3;
-        drop((sdr, lin));
-        io::write_hdr_with(&out, &img, &exr)?;
-        let rec = FrameRecord {
-            id: frame.id.clone(),
-            probe: probe_meta.id.clone(),
-            probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
-            probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
-            warp: warp_report,
-            flow: flow_report,
-            fusion: fusion_report,
-            total_ms,
-            repaired_pixels: repaired,
-            fingerprint: fp.to_string(),
+    let compute =
+        |frame: &Frame, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
+            let probe_meta = &scene.probes[used[0]];
+            let out = out_dir.join(format!("{}.exr", frame.id));
+            let side = out_dir.join(format!("{}.json", frame.id));
+            let sdr = load_frame(frame, params.size)?;
+            let mut repaired = 0;
+            for &u in used {
+                repaired += get_probe(u)?.1;
+            }
+            let t = Instant::now();
+            let lin = linearize(&sdr, scene);
+            let (img, warp_report, flow_report, fusion_report) =
+                predict_held(scene, frame, &sdr, &lin, used, access, params, holds)?;
+            let total_ms = t.elapsed().as_secs_f64() * 1e3;
+            drop((sdr, lin));
+            io::write_hdr_with(&out, &img, &exr)?;
+            let rec = FrameRecord {
+                id: frame.id.clone(),
+                probe: probe_meta.id.clone(),
+                probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
+                probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
+                warp: warp_report,
+                flow: flow_report,
+                fusion: fusion_report,
+                total_ms,
+                repaired_pixels: repaired,
+                fingerprint: fp.to_string(),
+            };
+            let json =
+                serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
+            crate::fsutil::write_atomic(&side, &json)?;
+            Ok(rec)
         };
-        let json = serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
-        crate::fsutil::write_atomic(&side, &json)?;
-        Ok(rec)
-    };
     // Each worker takes the next frame in walk order, so the frames in flight are
     // neighbours that share their probes.
     let next = AtomicUsize::new(0);
@@ -469,7 +474,7 @@ fn run_named(
         let r = match kept {
             Some(rec) => Ok((rec.clone(), true)),
             None => {
-                let r = compute(frame, used, fp).map(|rec| (rec, false));
+                let r = compute(frame, used, fp, &[]).map(|rec| (rec, false));
                 release(used);
                 r
             }
@@ -493,6 +498,25 @@ fn run_named(
             resumed.push(rec.id.clone());
         }
         frames.push(rec);
+    }
+    // The walk as one sequence: frames whose regions the walk holds are fused
+    // again with those holds (and a frame held before whose holds changed).
+    if params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off {
+        let wanted = walk::wanted(scene, &frames, &params.fusion.walk);
+        let redo: Vec<usize> = (0..frames.len())
+            .filter(|&i| walk::held(&frames[i]) != wanted[i])
+            .collect();
+        let redone: Vec<Result<FrameRecord>> = redo
+            .par_iter()
+            .map(|&i| {
+                let (used, fp, _) = &inputs[i];
+                compute(&scene.frames[i], used, fp, &wanted[i])
+            })
+            .collect();
+        for (&i, r) in redo.iter().zip(redone) {
+            frames[i] = r?;
+            resumed.retain(|id| id != &frames[i].id);
+        }
     }
     let report = RunReport {
         scene: scene.name.clone(),
@@ -523,6 +547,13 @@ pub fn run_shard(
         return Err(Error::Invalid(format!(
             "shard {index}/{count}: the index must be below the count"
         )));
+    }
+    if count > 1 && params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off {
+        return Err(Error::Invalid(
+            "the walk's sequence (fusion.walk.mode) needs every frame of the walk in one run; \
+             run without --shard, or with fusion.walk.mode=\"off\""
+                .into(),
+        ));
     }
     let mut sub = scene.clone();
     sub.frames = scene
@@ -619,6 +650,27 @@ pub fn predict_frame(
     Option<FlowReport>,
     Option<FusionReport>,
 )> {
+    predict_held(scene, frame, sdr, lin, used, access, params, &[])
+}
+
+/// [`predict_frame`], with the fusion's regions named in `walk` held to the
+/// power the neighbouring frames carry to them ([`crate::fusion::walk`]).
+#[allow(clippy::too_many_arguments)]
+fn predict_held(
+    scene: &Scene,
+    frame: &Frame,
+    sdr: &SdrImage,
+    lin: &HdrImage,
+    used: &[usize],
+    access: ProbeAccess,
+    params: &RunParams,
+    walk: &[Mend],
+) -> Result<(
+    HdrImage,
+    Option<WarpReport>,
+    Option<FlowReport>,
+    Option<FusionReport>,
+)> {
     let (w, h) = (sdr.width(), sdr.height());
     let (get_probe, pairs) = (access.get, access.pairs);
     if params.method == Method::Fusion {
@@ -682,7 +734,10 @@ pub fn predict_frame(
             .map(|(&u, pp)| pairs.probe(u, || ProbeEvidence::new(&pp.image, &pp.pose, white)))
             .collect();
         let refs: Vec<&ProbeEvidence> = probe_ev.iter().map(|e| &**e).collect();
-        let evidence = Evidence::at_frame(&refs, &frame.pose, w, h);
+        let evidence = Evidence {
+            walk: walk.to_vec(),
+            ..Evidence::at_frame(&refs, &frame.pose, w, h)
+        };
         let (img, mut rep) = fuse_with_lights(
             &Measured {
                 codes: sdr,

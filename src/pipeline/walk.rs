@@ -1,0 +1,64 @@
+//! The walk pass of a run: after every frame is fused, each frame's regions are
+//! followed along the walk ([`crate::fusion::walk`]) and the frames whose
+//! regions the walk holds are fused again with those holds.
+
+use super::FrameRecord;
+use crate::fusion::ledger::Source;
+use crate::fusion::walk::{mends, Mend, WalkParams, WalkRegion};
+use crate::scene::Scene;
+use glam::Vec3;
+
+/// The regions of a frame's ledger as the walk sees them (world axes, the
+/// power added before any hold of the walk's).
+fn regions(scene: &Scene, i: usize, rec: &FrameRecord) -> Vec<WalkRegion> {
+    let Some(fu) = &rec.fusion else {
+        return Vec::new();
+    };
+    let to_world = scene.frames[i].pose.world_from_camera;
+    fu.ledger
+        .iter()
+        .filter_map(|e| {
+            let dir = (to_world * Vec3::from_array(e.dir)).normalize_or_zero();
+            let solid_angle = fu.blobs.get(e.region)?.solid_angle_sr;
+            let added = e.walk.map_or(e.added, |w| w.before);
+            // Carried and far sources are the probes' measurements carried pixel
+            // by pixel to the frame; a placed light's or the probes' budget
+            // includes the base estimate's own power.
+            let supported = match e.source {
+                Source::Carried | Source::Far => e.budget.min(added),
+                Source::Placed | Source::Probes | Source::None => 0.0,
+            };
+            (dir != Vec3::ZERO).then_some(WalkRegion {
+                region: e.region,
+                dir,
+                solid_angle,
+                added,
+                supported,
+            })
+        })
+        .collect()
+}
+
+/// The holds each frame of the walk should have, in walk order.
+pub(super) fn wanted(scene: &Scene, records: &[FrameRecord], p: &WalkParams) -> Vec<Vec<Mend>> {
+    let frames: Vec<Vec<WalkRegion>> = records
+        .iter()
+        .enumerate()
+        .map(|(i, r)| regions(scene, i, r))
+        .collect();
+    mends(&frames, p)
+}
+
+/// The holds a frame's outputs were made with.
+pub(super) fn held(rec: &FrameRecord) -> Vec<Mend> {
+    rec.fusion
+        .iter()
+        .flat_map(|f| f.ledger.iter())
+        .filter_map(|e| {
+            e.walk.map(|w| Mend {
+                region: e.region,
+                power: w.power,
+            })
+        })
+        .collect()
+}
