@@ -189,3 +189,44 @@ fn shards_into_one_folder_equal_one_run() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("2/2"));
 }
+
+#[test]
+fn shards_then_one_run_equal_one_run_with_the_walk_as_a_sequence() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sc = scene(tmp.path(), 5);
+    let sc_s = sc.to_str().unwrap();
+    let (one, sharded) = (tmp.path().join("one"), tmp.path().join("sharded"));
+    let walk = ["--method", "fusion", "--set", "fusion.walk.mode=two_sided"];
+    let run = |out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec!["run", sc_s, "--out", out.to_str().unwrap()];
+        args.extend_from_slice(&walk);
+        args.extend_from_slice(extra);
+        let o = lumiprobe(&args).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    run(&one, &[]);
+    for s in ["0/2", "1/2"] {
+        run(&sharded, &["--shard", s]);
+    }
+    let shard_report = std::fs::read_to_string(sharded.join("report.shard-0-of-2.json")).unwrap();
+    assert!(shard_report.contains("without --shard"), "{shard_report}");
+    run(&sharded, &[]);
+    assert_eq!(outputs(&one), outputs(&sharded));
+    // The final run fused nothing it did not hold.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sharded.join("report.json")).unwrap())
+            .unwrap();
+    let frames = report["frames"].as_array().unwrap();
+    let held = frames
+        .iter()
+        .filter(|f| {
+            f["fusion"]["ledger"]
+                .as_array()
+                .is_some_and(|l| l.iter().any(|e| e.get("walk").is_some()))
+        })
+        .count();
+    assert_eq!(
+        report["resumed"].as_array().unwrap().len() + held,
+        frames.len()
+    );
+}

@@ -345,7 +345,7 @@ pub fn run(
     params: &RunParams,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<RunReport> {
-    run_named(scene, out_dir, params, progress, "report.json")
+    run_named(scene, out_dir, params, progress, "report.json", true)
 }
 
 fn run_named(
@@ -354,6 +354,7 @@ fn run_named(
     params: &RunParams,
     progress: &(dyn Fn(usize, usize) + Sync),
     report_name: &str,
+    whole_walk: bool,
 ) -> Result<RunReport> {
     use rayon::prelude::*;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
@@ -501,7 +502,17 @@ fn run_named(
     }
     // The walk as one sequence: frames whose regions the walk holds are fused
     // again with those holds (and a frame held before whose holds changed).
-    if params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off {
+    let mut warnings = scene.warnings.clone();
+    let walk_on = params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off;
+    if walk_on && !whole_walk {
+        warnings.push(
+            "this shard's frames are fused one by one: once every shard is done, \
+             run the scene again without --shard to fuse the walk as one sequence \
+             (it resumes every frame and fuses again only the frames it holds)"
+                .into(),
+        );
+    }
+    if walk_on && whole_walk {
         let wanted = walk::wanted(scene, &frames, &params.fusion.walk);
         let redo: Vec<usize> = (0..frames.len())
             .filter(|&i| walk::held(&frames[i]) != wanted[i])
@@ -523,7 +534,7 @@ fn run_named(
         params: params.clone(),
         frames,
         resumed,
-        warnings: scene.warnings.clone(),
+        warnings,
     };
     let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
     crate::fsutil::write_atomic(&out_dir.join(report_name), &json)?;
@@ -532,9 +543,12 @@ fn run_named(
 
 /// Runs shard `index` of `count` (frames whose position in the walk is `index`
 /// modulo `count`), so a long walk splits over machines (a Slurm array or a
-/// Kubernetes indexed job: one shard per task, all into the same folder). Frames
-/// are independent, so the union of the shards' outputs is byte-identical to one
-/// run; each shard writes `report.shard-<index>-of-<count>.json`.
+/// Kubernetes indexed job: one shard per task, all into the same folder). Each
+/// shard fuses its frames one by one, so the union of the shards' outputs is
+/// byte-identical to one run with the walk's sequence off; a run without
+/// shards afterwards resumes every frame and applies the walk
+/// ([`crate::fusion::walk`]). Each shard writes
+/// `report.shard-<index>-of-<count>.json`.
 pub fn run_shard(
     scene: &Scene,
     out_dir: &Path,
@@ -547,13 +561,6 @@ pub fn run_shard(
         return Err(Error::Invalid(format!(
             "shard {index}/{count}: the index must be below the count"
         )));
-    }
-    if count > 1 && params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off {
-        return Err(Error::Invalid(
-            "the walk's sequence (fusion.walk.mode) needs every frame of the walk in one run; \
-             run without --shard, or with fusion.walk.mode=\"off\""
-                .into(),
-        ));
     }
     let mut sub = scene.clone();
     sub.frames = scene
@@ -569,6 +576,7 @@ pub fn run_shard(
         params,
         progress,
         &format!("report.shard-{index}-of-{count}.json"),
+        count == 1,
     )
 }
 
