@@ -56,8 +56,16 @@ impl Error {
     }
     /// An I/O error for `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        let path = path.as_ref();
+        // Making a folder where a file stands ("File exists"): say so.
+        if source.kind() == std::io::ErrorKind::AlreadyExists && path.is_file() {
+            return Error::format(
+                path,
+                "is a file where a folder is needed: give a folder, or move the file away",
+            );
+        }
         Error::Io {
-            path: path.as_ref().to_path_buf(),
+            path: path.to_path_buf(),
             source,
         }
     }

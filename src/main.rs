@@ -507,7 +507,9 @@ enum Cmd {
         /// Reference.
         b: PathBuf,
     },
-    /// Convert between HDR formats (.exr, .hdr, .pfm) by extension.
+    /// Convert between HDR formats (.exr, .hdr, .pfm) by extension; NaN, infinite
+    /// and negative samples are repaired (zero; +inf the brightest finite sample)
+    /// with a warning that counts them.
     Convert {
         /// Input file.
         input: PathBuf,
@@ -719,6 +721,39 @@ fn main() {
     }
 }
 
+/// One line on a finished run: frames computed and resumed, the computed
+/// frames' mean time (none when every frame was up to date).
+fn run_summary(report: &pipeline::RunReport, out: &std::path::Path) -> String {
+    let computed: Vec<&pipeline::FrameRecord> = report
+        .frames
+        .iter()
+        .filter(|f| !report.resumed.contains(&f.id))
+        .collect();
+    let time = if computed.is_empty() {
+        "all up to date".to_string()
+    } else {
+        let ms = computed.iter().map(|f| f.total_ms).sum::<f64>() / computed.len() as f64;
+        format!("{} computed at {ms:.1} ms per frame", computed.len())
+    };
+    let homog: usize = computed
+        .iter()
+        .filter_map(|f| f.warp.as_ref())
+        .map(|w| w.faces.iter().filter(|x| x.source == "homography").count())
+        .sum();
+    let faces = if homog > 0 {
+        format!(", {homog} faces used a homography")
+    } else {
+        String::new()
+    };
+    format!(
+        "{}: {} frames ({} resumed, {time}){faces}; report: {}",
+        report.scene,
+        report.frames.len(),
+        report.resumed.len(),
+        out.join("report.json").display()
+    )
+}
+
 fn real_main(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Run {
@@ -738,7 +773,9 @@ fn real_main(cli: Cli) -> Result<()> {
             let (mut scene, out, method, size) = if is_manifest {
                 let m = lumiprobe::scene::manifest::Manifest::load(&scene)?;
                 let (prepared, plan) = lumiprobe::pipeline::plan::prepare(&m, dry_run)?;
-                print!("{}", plan.to_text());
+                if !cli.quiet || dry_run {
+                    print!("{}", plan.to_text());
+                }
                 let mm = match m.output.method.as_str() {
                     "warp" => Method::Warp,
                     "flow" => Method::Flow,
@@ -806,24 +843,15 @@ fn real_main(cli: Cli) -> Result<()> {
                     &progress_printer(cli.quiet, "frames"),
                 )?,
             };
+            for w in report
+                .warnings
+                .iter()
+                .filter(|w| !scene.warnings.contains(w))
+            {
+                eprintln!("warning: {w}");
+            }
             if !cli.quiet {
-                let n = report.frames.len().max(1) as f64;
-                let mean_ms: f64 = report.frames.iter().map(|f| f.total_ms).sum::<f64>() / n;
-                let homog: usize = report
-                    .frames
-                    .iter()
-                    .filter_map(|f| f.warp.as_ref())
-                    .map(|w| w.faces.iter().filter(|x| x.source == "homography").count())
-                    .sum();
-                println!(
-                    "{}: {} frames ({} resumed), {:.1} ms per frame, {} faces used a homography; report: {}",
-                    report.scene,
-                    report.frames.len(),
-                    report.resumed.len(),
-                    mean_ms,
-                    homog,
-                    out.join("report.json").display()
-                );
+                println!("{}", run_summary(&report, &out));
             }
         }
         Cmd::Demo {
@@ -1455,7 +1483,15 @@ fn real_main(cli: Cli) -> Result<()> {
             output,
             exr_compression,
         } => {
-            let img = io::read_hdr(&input)?;
+            let mut img = io::read_hdr(&input)?;
+            let repaired = img.repair_invalid();
+            if repaired > 0 {
+                eprintln!(
+                    "warning: {}: {repaired} NaN, infinite or negative samples repaired \
+                     (set to zero; +inf to the brightest finite sample)",
+                    input.display()
+                );
+            }
             let exr = io::ExrWriteOptions {
                 compression: exr_compression,
                 ..Default::default()

@@ -51,3 +51,54 @@ fn nan_and_infinite_numbers_are_refused() {
         &["--pitch", "not a number"],
     );
 }
+
+#[test]
+fn an_output_folder_that_is_a_file_is_named_as_such() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = lumiprobe::synth::SynthParams {
+        width: 64,
+        n_frames: 2,
+        n_probes: 2,
+        seed: 2,
+        name: "f".into(),
+        ..Default::default()
+    };
+    let scene = tmp.path().join("scene");
+    lumiprobe::synth::synthesize(&p).write(&scene).unwrap();
+    let file = tmp.path().join("afile");
+    std::fs::write(&file, b"keep me").unwrap();
+    refused(
+        &[
+            "run",
+            scene.to_str().unwrap(),
+            "--out",
+            file.to_str().unwrap(),
+        ],
+        &["afile", "is a file where a folder is needed"],
+    );
+    assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
+}
+
+#[test]
+fn convert_repairs_nan_with_a_warning_that_counts_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A 2x1 colour PFM (little-endian): one pixel NaN in red, one infinite.
+    let mut bytes = b"PF\n2 1\n-1.0\n".to_vec();
+    for v in [f32::NAN, 0.5, 0.5, f32::INFINITY, 1.0, 2.0] {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    let src = tmp.path().join("bad.pfm");
+    std::fs::write(&src, bytes).unwrap();
+    let dst = tmp.path().join("good.exr");
+    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(["convert", src.to_str().unwrap(), dst.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("bad.pfm") && err.contains("2 NaN"), "{err}");
+    assert!(!err.contains("::"), "a Rust path in a message: {err}");
+    let img = lumiprobe::image::io::read_hdr(&dst).unwrap();
+    assert_eq!(img.count_invalid(), 0);
+    assert_eq!(img.get(1, 0), [2.0, 1.0, 2.0]);
+}

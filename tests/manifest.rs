@@ -156,3 +156,55 @@ fn a_manifest_without_poses_plans_localization() {
         "a dry run writes nothing"
     );
 }
+
+/// Runs the lumiprobe binary, returning its stdout; fails on a non-zero exit.
+fn cli(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(args)
+        .output()
+        .expect("the lumiprobe binary runs");
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("capture");
+    let p = SynthParams {
+        width: 64,
+        n_frames: 3,
+        n_probes: 2,
+        seed: 7,
+        name: "m".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    for e in std::fs::read_dir(dir.join("probes")).unwrap() {
+        let path = e.unwrap().path();
+        if path.extension().is_some_and(|x| x == "exr") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let text = Manifest::draft(&dir)
+        .unwrap()
+        .replace("method = \"fusion\"", "method = \"warp\"");
+    let mf = dir.join("lumiprobe.toml");
+    std::fs::write(&mf, text).unwrap();
+    let mf = mf.to_str().unwrap();
+    // Merges pending: the dry run still says how many frames are to compute.
+    let dry = cli(&["run", mf, "--dry-run"]);
+    assert!(dry.contains("once the probes are merged"), "{dry}");
+    assert!(dry.contains("all 3"), "{dry}");
+    // Quiet: no plan, no summary.
+    let quiet = cli(&["-q", "run", mf]);
+    assert!(quiet.trim().is_empty(), "{quiet}");
+    // Everything resumed: no time per frame is claimed.
+    let again = cli(&["run", mf]);
+    assert!(again.contains("3 resumed, all up to date"), "{again}");
+    assert!(!again.contains("ms per frame"), "{again}");
+}

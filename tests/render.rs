@@ -573,3 +573,50 @@ fn random_byte_corruption_never_panics() {
     }
     assert_eq!(PANICS.load(Ordering::SeqCst), 0);
 }
+
+#[test]
+fn composite_with_relative_folders_writes_its_video_and_leaves_no_list() {
+    let duck = model_path("Duck.glb").unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let p = lumiprobe::synth::SynthParams {
+        width: 64,
+        n_frames: 3,
+        n_probes: 2,
+        seed: 3,
+        name: "c".into(),
+        ..Default::default()
+    };
+    lumiprobe::synth::synthesize(&p)
+        .write(&tmp.path().join("scene"))
+        .unwrap();
+    let bin = env!("CARGO_BIN_EXE_lumiprobe");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(bin)
+            .current_dir(tmp.path())
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    run(&["-q", "run", "scene", "--out", "pred", "--method", "warp"]);
+    run(&[
+        "-q",
+        "composite",
+        "scene",
+        "--pred",
+        "pred",
+        "--model",
+        duck.to_str().unwrap(),
+        "--at",
+        "0,0,-1",
+        "--out",
+        "comp",
+    ]);
+    let comp = tmp.path().join("comp");
+    assert!(comp.join("composite.mp4").metadata().unwrap().len() > 0);
+    assert!(!comp.join("frames.txt").exists());
+}

@@ -381,7 +381,7 @@ fn fuse(
                 s.name
             );
             return Err(Error::Invalid(
-                m + "; repair them first (HdrImage::repair_invalid)",
+                m + "; re-export it, or run it through `lumiprobe convert`, which repairs them",
             ));
         }
     }

@@ -409,7 +409,7 @@ pub fn fuse_with_lights(
         if bad > 0 {
             let m = format!("{name} has {bad} NaN, infinite or negative samples");
             return Err(Error::Invalid(
-                m + "; repair them first (HdrImage::repair_invalid)",
+                m + "; re-export it, or run it through `lumiprobe convert`, which repairs them",
             ));
         }
     }

@@ -551,7 +551,7 @@ pub fn prefilter_to_dir(
             probe,
             format!(
                 "{bad} samples are NaN, infinite or negative; refusing to prefilter \
-                 (repair the probe, e.g. with HdrImage::repair_invalid, and retry)"
+                 (repair the probe with `lumiprobe convert` and retry)"
             ),
         ));
     }

@@ -245,12 +245,14 @@ pub fn composite(
     if !report.frames.is_empty() && crate::fsutil::have_program("ffmpeg") {
         let list = out_dir.join("frames.txt");
         let mut text = String::new();
+        // ffmpeg's concat list resolves names against the list's own folder,
+        // where the pictures are: their bare names, quoted.
         for f in &report.frames {
-            text += &format!(
-                "file '{}'\nduration {}\n",
-                f.display(),
-                1.0 / fps.max(1) as f64
-            );
+            let name = f
+                .file_name()
+                .map(|n| n.to_string_lossy().replace('\'', "'\\''"))
+                .unwrap_or_default();
+            text += &format!("file '{name}'\nduration {}\n", 1.0 / fps.max(1) as f64);
         }
         crate::fsutil::write_atomic(&list, text.as_bytes())?;
         let mp4 = out_dir.join("composite.mp4");
@@ -276,6 +278,7 @@ pub fn composite(
             .arg(&tmp)
             .status()
             .map_err(|e| Error::io(&tmp, e))?;
+        let _ = std::fs::remove_file(&list);
         if st.success() {
             std::fs::rename(&tmp, &mp4).map_err(|e| Error::io(&mp4, e))?;
             report.video = Some(mp4);

@@ -407,6 +407,15 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                     StageState::Computed,
                     "COLMAP on pinhole views of every panorama",
                 );
+                plan.push(
+                    "frames",
+                    StageState::Computed,
+                    if frame_files.is_empty() {
+                        "every frame (once extracted and localized)".to_string()
+                    } else {
+                        format!("all {} (once localized)", frame_files.len())
+                    },
+                );
                 return Ok((None, plan));
             } else {
                 let mut panos = Vec::new();
@@ -514,6 +523,11 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         if m.gain == GainChoice::Auto {
             plan.push("calibrate gain", StageState::Computed, "against the probes");
         }
+        plan.push(
+            "frames",
+            StageState::Computed,
+            format!("all {} (once the probes are merged)", frames.len()),
+        );
         return Ok((None, plan));
     }
     let response = curve.as_ref().map(|c| c.to_table(1)).unwrap_or_default();

@@ -641,7 +641,7 @@ pub fn warp_frame(
         if bad > 0 {
             return Err(crate::error::Error::Invalid(format!(
                 "warp: the {what} has {bad} NaN, infinite or negative samples \
-                 (repair them first, e.g. with HdrImage::repair_invalid)"
+                 (re-export it from its source, or run it through `lumiprobe convert`, which repairs them)"
             )));
         }
     }

@@ -126,8 +126,8 @@ pub fn decode_hdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage
         f @ (Format::Png | Format::Jpeg) => Err(Error::format(
             name,
             format!(
-                "is an 8-bit {} image, not HDR; read it with read_sdr and convert it with \
-                 sdr_to_linear and the camera response",
+                "is an 8-bit {} image, not HDR: merge brackets into an HDR probe with \
+                 `lumiprobe merge`, or give an .exr, .hdr or .pfm file",
                 f.name()
             ),
         )),
@@ -173,7 +173,7 @@ pub fn write_hdr_with(path: &Path, img: &HdrImage, exr: &ExrWriteOptions) -> Res
         Some(Format::Pfm) => pfm::write(path, img),
         Some(f @ (Format::Png | Format::Jpeg)) => Err(Error::Invalid(format!(
             "{}: {} is an 8-bit format; write HDR images as .exr, .hdr or .pfm \
-             (or tone map with linear_to_sdr and use write_sdr)",
+             (`lumiprobe tonemap` writes 8-bit previews)",
             path.display(),
             f.name()
         ))),
@@ -259,7 +259,7 @@ pub(crate) fn check_finite(path: &Path, img: &HdrImage) -> Result<()> {
     if bad > 0 {
         return Err(Error::Invalid(format!(
             "{}: image has {bad} NaN or infinite samples; refusing to write them \
-             (repair them first, e.g. with HdrImage::repair_invalid)",
+             (`lumiprobe convert` repairs them)",
             path.display()
         )));
     }
