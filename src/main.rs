@@ -902,7 +902,7 @@ fn real_main(cli: Cli) -> Result<()> {
             flow,
         } => {
             let scene_dir = scene;
-            let scene = Scene::load(&scene_dir)?;
+            let scene = lumiprobe::pipeline::plan::load_scene(&scene_dir, !cli.quiet)?;
             let params = run_params(method, size, &warp, &flow).with_settings(&set)?;
             if let Some(js) = point_json {
                 let p: lumiprobe::pipeline::RunParams = serde_json::from_str(&js)
@@ -1095,7 +1095,7 @@ fn real_main(cli: Cli) -> Result<()> {
             render_size,
             report,
         } => {
-            let scene = Scene::load(&scene)?;
+            let scene = lumiprobe::pipeline::plan::load_scene(&scene, !cli.quiet)?;
             let labelled: Vec<(String, PathBuf)> = pred
                 .iter()
                 .map(|p| match p.split_once('=') {
@@ -1181,7 +1181,7 @@ fn real_main(cli: Cli) -> Result<()> {
             fps,
         } => {
             use lumiprobe::pipeline::composite::{composite, CompositeOptions};
-            let scene = Scene::load(&scene)?;
+            let scene = lumiprobe::pipeline::plan::load_scene(&scene, !cli.quiet)?;
             let opts = CompositeOptions {
                 at: glam::Vec3::from(at),
                 radius,
@@ -1306,7 +1306,7 @@ fn real_main(cli: Cli) -> Result<()> {
             reuse,
         } => {
             use lumiprobe::capture::localize::{localize, pose_errors, LocalizeOptions, Panorama};
-            let scene = Scene::load(&scene)?;
+            let scene = lumiprobe::pipeline::plan::load_scene(&scene, !cli.quiet)?;
             let opts = LocalizeOptions {
                 views,
                 view_size,
@@ -1420,7 +1420,7 @@ fn real_main(cli: Cli) -> Result<()> {
             }
         }
         Cmd::Calibrate { scene } => {
-            let scene = Scene::load(&scene)?;
+            let scene = lumiprobe::pipeline::plan::load_scene(&scene, !cli.quiet)?;
             let est = lumiprobe::capture::calibrate::calibrate_gain(
                 &scene,
                 &lumiprobe::capture::calibrate::CalibrateOptions::default(),

@@ -207,4 +207,30 @@ fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
     let again = cli(&["run", mf]);
     assert!(again.contains("3 resumed, all up to date"), "{again}");
     assert!(!again.contains("ms per frame"), "{again}");
+    // The other commands that take a scene take the manifest alike (its merged
+    // probes from the cache, its gain).
+    let m = Manifest::load(std::path::Path::new(mf)).unwrap();
+    let pred = m.output.folder.to_str().unwrap().to_string();
+    // A capture has no ground truth: eval reads the manifest and says so.
+    let ev = std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(["-q", "eval", mf, "--pred", &pred])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&ev.stderr);
+    assert!(
+        !ev.status.success() && err.contains("no frame with ground truth"),
+        "{err}"
+    );
+    let bench = cli(&[
+        "-q",
+        "bench",
+        mf,
+        "--repeats",
+        "1",
+        "--method",
+        "warp",
+        "--json",
+    ]);
+    assert!(!bench.trim().is_empty());
+    cli(&["-q", "calibrate", mf]);
 }

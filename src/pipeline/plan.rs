@@ -166,6 +166,23 @@ fn read_localized(file: &Path) -> Result<(Vec<(String, Pose)>, Vec<(String, Pose
     Ok((probes, frames))
 }
 
+/// The scene a command names: a manifest (`.toml`, prepared as `run` prepares
+/// it: merges, response, poses and gain from its cache, computed when missing),
+/// a scene folder or a poses file. With `plan`, the manifest's plan is written
+/// to standard error.
+pub fn load_scene(path: &Path, plan: bool) -> Result<Scene> {
+    if path.extension().is_some_and(|e| e == "toml") {
+        let m = Manifest::load(path)?;
+        let (scene, p) = prepare(&m, false)?;
+        if plan {
+            eprint!("{}", p.to_text());
+        }
+        scene.ok_or_else(|| Error::format(path, "the scene could not be prepared"))
+    } else {
+        Scene::load(path)
+    }
+}
+
 /// Prepares the manifest's scene (see the module docs). With `dry_run` nothing is
 /// computed or written and no scene is returned, only the plan.
 pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
