@@ -167,8 +167,19 @@ impl Scene {
     /// Parses the text of a `poses.json`; `root` resolves relative paths and `file`
     /// names the source in errors.
     pub fn parse(text: &str, root: &Path, file: &Path) -> Result<Scene> {
-        let raw: RawScene = serde_json::from_str(text)
-            .map_err(|e| Error::format(file, format!("not a valid scene description: {e}")))?;
+        let raw: RawScene = serde_json::from_str(text).map_err(|e| {
+            Error::format(
+                file,
+                format!(
+                    "not a valid scene description: {e}{}",
+                    if e.is_syntax() {
+                        json_context(text, e.line(), e.column())
+                    } else {
+                        String::new()
+                    }
+                ),
+            )
+        })?;
         let mut warnings = Vec::new();
         let mut pose_of = |kind: &str, e: &RawEntry| -> Result<Pose> {
             let p = Vec3::new(
@@ -382,5 +393,113 @@ mod tests {
         assert!(e.contains("sdr"), "{e}");
         let singular = GOOD.replace("[[1.01,0,0],[0,0,-1],[0,1,0]]", "[[0,0,0],[0,0,0],[0,0,0]]");
         assert!(Scene::parse(&singular, Path::new("/d"), Path::new("/d/poses.json")).is_err());
+    }
+}
+
+/// Where in a JSON text a parse error at (`line`, `column`) (1-based, as
+/// serde_json counts) sits, in the file's own words: the key and entry id it
+/// belongs to, and a word on values JSON cannot hold (NaN, Infinity).
+fn json_context(text: &str, line: usize, column: usize) -> String {
+    if line == 0 {
+        return String::new();
+    }
+    let Some(start) = text
+        .split_inclusive('\n')
+        .take(line - 1)
+        .map(str::len)
+        .sum::<usize>()
+        .checked_add(column.saturating_sub(1))
+    else {
+        return String::new();
+    };
+    let mut at = start.min(text.len());
+    while !text.is_char_boundary(at) {
+        at -= 1;
+    }
+    let before = &text[..at];
+    // The value's token: the error points at or just past it.
+    let from = before
+        .rfind(|c: char| c == ':' || c == ',' || c == '[' || c == '{')
+        .map_or(0, |i| i + 1);
+    let token: String = text[from..]
+        .trim_start()
+        .chars()
+        .take_while(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '+' || *c == '.')
+        .collect();
+    let quoted = |s: &str, key: &str| -> Option<String> {
+        let k = s.rfind(&format!("\"{key}\""))?;
+        let rest = s[k + key.len() + 2..]
+            .trim_start()
+            .strip_prefix(':')?
+            .trim_start();
+        let rest = rest.strip_prefix('"')?;
+        Some(rest[..rest.find('"')?].to_string())
+    };
+    // The last key before the error.
+    let key = {
+        let mut k = None;
+        let mut s = before;
+        while let Some(c) = s.rfind("\":") {
+            let open = s[..c].rfind('"');
+            if let Some(o) = open {
+                k = Some(s[o + 1..c].to_string());
+                break;
+            }
+            s = &s[..c];
+        }
+        k
+    };
+    let mut out = String::new();
+    if let Some(k) = key {
+        out += &format!(" (in \"{k}\"");
+        if let Some(id) = quoted(before, "id") {
+            out += &format!(" of the entry with id \"{id}\"");
+        }
+        out += ")";
+    }
+    let t = token.trim_start_matches(['-', '+']);
+    if t.eq_ignore_ascii_case("nan")
+        || t.eq_ignore_ascii_case("infinity")
+        || t.eq_ignore_ascii_case("inf")
+    {
+        out += &format!(": {token} is not a number JSON can hold; give a finite number");
+    }
+    out
+}
+
+#[cfg(test)]
+mod json_context_tests {
+    use super::*;
+
+    #[test]
+    fn a_nan_in_poses_is_named_by_key_and_entry() {
+        let rot = "\"world_from_camera\": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]";
+        let text = format!(
+            "{{\n  \"frames\": [\n    {{\"id\": \"f0\", \"position\": [0, 0, 0], {rot}}},\n    {{\"id\": \"f1\", \"position\": [1, NaN, 0], {rot}}}\n  ]\n}}\n"
+        );
+        let e = Scene::parse(&text, Path::new("."), Path::new("poses.json"))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("poses.json"), "{e}");
+        assert!(e.contains("line 4"), "{e}");
+        assert!(
+            e.contains("\"position\" of the entry with id \"f1\""),
+            "{e}"
+        );
+        assert!(e.contains("NaN is not a number JSON can hold"), "{e}");
+        // Any position in any text gives an answer, never a panic.
+        let odd = "{\"é\": [\"ü\", NaN]}";
+        for line in 0..4 {
+            for col in 0..20 {
+                let _ = json_context(odd, line, col);
+            }
+        }
+        // A plain syntax error keeps serde's words without a NaN remark.
+        let e = Scene::parse("{\"frames\": [}", Path::new("."), Path::new("p.json"))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(!e.contains("NaN"), "{e}");
     }
 }
