@@ -102,3 +102,41 @@ fn convert_repairs_nan_with_a_warning_that_counts_them() {
     assert_eq!(img.count_invalid(), 0);
     assert_eq!(img.get(1, 0), [2.0, 1.0, 2.0]);
 }
+
+#[test]
+fn frames_that_are_not_2_to_1_or_not_the_probes_size_are_warned_about() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = lumiprobe::synth::SynthParams {
+        width: 64,
+        n_frames: 2,
+        n_probes: 2,
+        seed: 4,
+        name: "w".into(),
+        ..Default::default()
+    };
+    let dir = tmp.path().join("scene");
+    lumiprobe::synth::synthesize(&p).write(&dir).unwrap();
+    let scene = lumiprobe::scene::Scene::load(&dir).unwrap();
+    // Every frame 64x40: neither 2:1 nor the probes' 64x32.
+    for f in &scene.frames {
+        let img = lumiprobe::image::SdrImage::from_vec(64, 40, vec![90u8; 64 * 40 * 3]).unwrap();
+        lumiprobe::image::io::write_sdr(&f.sdr, &img).unwrap();
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args([
+            "run",
+            dir.to_str().unwrap(),
+            "--out",
+            tmp.path().join("o").to_str().unwrap(),
+            "--method",
+            "warp",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("64x40 is not a 2:1"), "{err}");
+    assert!(err.contains("but its probe is 64x32"), "{err}");
+    // Once each, not once per frame.
+    assert_eq!(err.matches("not a 2:1").count(), 1, "{err}");
+}

@@ -234,3 +234,61 @@ fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
     assert!(!bench.trim().is_empty());
     cli(&["-q", "calibrate", mf]);
 }
+
+#[test]
+fn a_probe_of_one_exposure_is_warned_about() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("capture");
+    let p = SynthParams {
+        width: 64,
+        n_frames: 2,
+        n_probes: 2,
+        seed: 8,
+        name: "m".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    let probes = dir.join("probes");
+    for e in std::fs::read_dir(&probes).unwrap() {
+        let path = e.unwrap().path();
+        if path.extension().is_some_and(|x| x == "exr") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    // The first probe keeps one photo of its bracket.
+    let first = std::fs::read_dir(&probes)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_dir())
+        .min()
+        .unwrap();
+    // (its photos, and the wide bracket beside them when there is one)
+    for folder in [first.clone(), first.join("wide")] {
+        if !folder.is_dir() {
+            continue;
+        }
+        let mut photos: Vec<_> = std::fs::read_dir(&folder)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_file())
+            .collect();
+        photos.sort();
+        assert!(photos.len() > 1);
+        for ph in &photos[1..] {
+            std::fs::remove_file(ph).unwrap();
+        }
+    }
+    let text = Manifest::draft(&dir)
+        .unwrap()
+        .replace("method = \"fusion\"", "method = \"warp\"");
+    let mf = dir.join("lumiprobe.toml");
+    std::fs::write(&mf, text).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(["-q", "run", mf.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let id = first.file_name().unwrap().to_string_lossy();
+    assert!(err.contains(&format!("probe {id}: one exposure")), "{err}");
+}

@@ -134,7 +134,11 @@ pub fn run_merge(a: &MergeArgs, quiet: bool) -> Result<MergeReport> {
     }
     let merged = merge(&exps, &curve, &MergeOptions::default())?;
     crate::image::io::write_hdr(&a.out, &merged.image)?;
-    if !quiet {
+    if quiet {
+        for w in &merged.report.warnings {
+            eprintln!("warning: {w}");
+        }
+    } else {
         println!("{what}");
         print!("{}", merged.report.summary());
         println!(

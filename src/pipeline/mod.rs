@@ -187,6 +187,45 @@ pub struct RunReport {
     pub warnings: Vec<String>,
 }
 
+/// Notes, once per run, a frame that is not a 2:1 panorama and a frame whose
+/// size differs from its probe's (at the working size).
+fn note_sizes(
+    noted: &Mutex<Vec<String>>,
+    frame: &Frame,
+    (w, h): (usize, usize),
+    probe: (usize, usize),
+) {
+    let mut found = Vec::new();
+    if w != 2 * h {
+        found.push(format!(
+            "{}: {w}x{h} is not a 2:1 equirectangular panorama; it is read as one \
+             (give --size WxH to resample every frame to 2:1)",
+            frame.sdr.display()
+        ));
+    }
+    if (w, h) != probe {
+        found.push(format!(
+            "{}: the frame is {w}x{h} but its probe is {}x{} (give --size WxH to work \
+             at one size)",
+            frame.sdr.display(),
+            probe.0,
+            probe.1
+        ));
+    }
+    if found.is_empty() {
+        return;
+    }
+    if let Ok(mut n) = noted.lock() {
+        for f in found {
+            // One note per kind: the first frame named.
+            let kind = |s: &str| s.contains("2:1");
+            if !n.iter().any(|x| kind(x) == kind(&f)) {
+                n.push(f);
+            }
+        }
+    }
+}
+
 /// Reads an SDR frame and resamples it to the working size.
 pub fn load_frame(frame: &Frame, size: Option<(usize, usize)>) -> Result<SdrImage> {
     let sdr = io::read_sdr(&frame.sdr)?;
@@ -426,6 +465,7 @@ fn run_named(
         get: &get_probe,
         pairs: &pairs,
     };
+    let noted: Mutex<Vec<String>> = Mutex::new(Vec::new());
     let compute =
         |frame: &Frame, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
             let probe_meta = &scene.probes[used[0]];
@@ -436,6 +476,10 @@ fn run_named(
             for &u in used {
                 repaired += get_probe(u)?.1;
             }
+            let probe_size = get_probe(used[0])
+                .map(|(p, _)| (p.image.width(), p.image.height()))
+                .unwrap_or((sdr.width(), sdr.height()));
+            note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
             let t = Instant::now();
             let lin = linearize(&sdr, scene);
             let (img, warp_report, flow_report, fusion_report) =
@@ -503,6 +547,9 @@ fn run_named(
     // The walk as one sequence: frames whose regions the walk holds are fused
     // again with those holds (and a frame held before whose holds changed).
     let mut warnings = scene.warnings.clone();
+    if let Ok(n) = noted.lock() {
+        warnings.extend(n.iter().cloned());
+    }
     let walk_on = params.method == Method::Fusion && params.fusion.walk.mode != WalkMode::Off;
     if walk_on && !whole_walk {
         warnings.push(

@@ -555,7 +555,19 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         frames,
         response,
         path_gain: 1.0,
-        warnings: Vec::new(),
+        warnings: m
+            .probes
+            .iter()
+            .filter(|p| p.brackets.len() == 1)
+            .map(|p| {
+                format!(
+                    "probe {}: one exposure ({}) cannot extend the range; its clipped \
+                     pixels stay at the white point (a lower bound): shoot a bracket",
+                    p.id,
+                    p.brackets[0].display()
+                )
+            })
+            .collect(),
     };
     match m.gain {
         GainChoice::Value(g) => {
