@@ -24,31 +24,10 @@ fn touch(p: &Path) {
 #[test]
 fn a_bracket_only_manifest_runs_caches_and_recomputes_only_what_changed() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("capture");
-    let p = SynthParams {
-        width: 128,
-        n_frames: 3,
-        n_probes: 2,
-        seed: 5,
-        name: "m".into(),
-        ..Default::default()
-    };
-    synthesize(&p).write(&dir).unwrap();
-    // Keep only what a camera gives: remove the probes' HDR files.
-    for e in std::fs::read_dir(dir.join("probes")).unwrap() {
-        let path = e.unwrap().path();
-        if path.extension().is_some_and(|x| x == "exr") {
-            std::fs::remove_file(path).unwrap();
-        }
-    }
-    let text = Manifest::draft(&dir).unwrap();
+    let mf = bracket_capture(tmp.path(), 128, 5, 3);
+    write_draft(&mf, "warp");
+    let text = std::fs::read_to_string(&mf).unwrap();
     assert!(text.contains("brackets = "), "{text}");
-    let mf = dir.join("lumiprobe.toml");
-    std::fs::write(
-        &mf,
-        text.replace("method = \"fusion\"", "method = \"warp\""),
-    )
-    .unwrap();
     let m = Manifest::load(&mf).unwrap();
 
     let params = RunParams {
@@ -171,15 +150,15 @@ fn cli(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-#[test]
-fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("capture");
+/// A synthetic capture as a camera gives it (the probes' HDR files removed:
+/// brackets only); returns the path its manifest is to have.
+fn bracket_capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std::path::PathBuf {
+    let dir = root.join("capture");
     let p = SynthParams {
-        width: 64,
-        n_frames: 3,
+        width,
+        n_frames,
         n_probes: 2,
-        seed: 7,
+        seed,
         name: "m".into(),
         ..Default::default()
     };
@@ -190,11 +169,23 @@ fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
             std::fs::remove_file(path).unwrap();
         }
     }
-    let text = Manifest::draft(&dir)
+    dir.join("lumiprobe.toml")
+}
+
+/// Drafts the capture's manifest with `method`.
+fn write_draft(mf: &Path, method: &str) {
+    let dir = mf.parent().unwrap();
+    let text = Manifest::draft(dir)
         .unwrap()
-        .replace("method = \"fusion\"", "method = \"warp\"");
-    let mf = dir.join("lumiprobe.toml");
-    std::fs::write(&mf, text).unwrap();
+        .replace("method = \"fusion\"", &format!("method = \"{method}\""));
+    std::fs::write(mf, text).unwrap();
+}
+
+#[test]
+fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mf = bracket_capture(tmp.path(), 64, 7, 3);
+    write_draft(&mf, "warp");
     let mf = mf.to_str().unwrap();
     // Merges pending: the dry run still says how many frames are to compute.
     let dry = cli(&["run", mf, "--dry-run"]);
@@ -238,23 +229,8 @@ fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
 #[test]
 fn a_probe_of_one_exposure_is_warned_about() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("capture");
-    let p = SynthParams {
-        width: 64,
-        n_frames: 2,
-        n_probes: 2,
-        seed: 8,
-        name: "m".into(),
-        ..Default::default()
-    };
-    synthesize(&p).write(&dir).unwrap();
-    let probes = dir.join("probes");
-    for e in std::fs::read_dir(&probes).unwrap() {
-        let path = e.unwrap().path();
-        if path.extension().is_some_and(|x| x == "exr") {
-            std::fs::remove_file(path).unwrap();
-        }
-    }
+    let mf = bracket_capture(tmp.path(), 64, 8, 2);
+    let probes = mf.parent().unwrap().join("probes");
     // The first probe keeps one photo of its bracket.
     let first = std::fs::read_dir(&probes)
         .unwrap()
@@ -278,11 +254,7 @@ fn a_probe_of_one_exposure_is_warned_about() {
             std::fs::remove_file(ph).unwrap();
         }
     }
-    let text = Manifest::draft(&dir)
-        .unwrap()
-        .replace("method = \"fusion\"", "method = \"warp\"");
-    let mf = dir.join("lumiprobe.toml");
-    std::fs::write(&mf, text).unwrap();
+    write_draft(&mf, "warp");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
         .args(["-q", "run", mf.to_str().unwrap()])
         .output()

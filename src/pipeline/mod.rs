@@ -689,6 +689,14 @@ pub struct ProbeAccess<'a> {
     pub pairs: &'a LightPairs,
 }
 
+/// A frame's prediction and the reports of the methods that made it.
+pub type Prediction = (
+    HdrImage,
+    Option<WarpReport>,
+    Option<FlowReport>,
+    Option<FusionReport>,
+);
+
 /// Predicts one frame with the configured method from its SDR image `sdr`, its
 /// radiance `lin`, and the probes `used` (nearest first), read through `access`.
 pub fn predict_frame(
@@ -699,12 +707,7 @@ pub fn predict_frame(
     used: &[usize],
     access: ProbeAccess,
     params: &RunParams,
-) -> Result<(
-    HdrImage,
-    Option<WarpReport>,
-    Option<FlowReport>,
-    Option<FusionReport>,
-)> {
+) -> Result<Prediction> {
     predict_held(scene, frame, sdr, lin, used, access, params, &[])
 }
 
@@ -720,12 +723,7 @@ fn predict_held(
     access: ProbeAccess,
     params: &RunParams,
     walk: &[Mend],
-) -> Result<(
-    HdrImage,
-    Option<WarpReport>,
-    Option<FlowReport>,
-    Option<FusionReport>,
-)> {
+) -> Result<Prediction> {
     let (w, h) = (sdr.width(), sdr.height());
     let (get_probe, pairs) = (access.get, access.pairs);
     if params.method == Method::Fusion {
