@@ -48,8 +48,9 @@ size_t lp_last_error(char *buf, size_t len);
 /* Reads an OpenEXR, Radiance .hdr or PFM file. 8-bit files are refused. */
 LpStatus lp_image_read(const char *path, LpImage **out);
 
-/* Copies width*height*3 floats into a new image. */
-LpStatus lp_image_from_rgb(const float *rgb, uint32_t width, uint32_t height, LpImage **out);
+/* Copies width*height*3 floats from rgb, which holds len floats, into a new
+ * image; a len other than width*height*3 is refused (LP_INVALID). */
+LpStatus lp_image_from_rgb(const float *rgb, size_t len, uint32_t width, uint32_t height, LpImage **out);
 
 uint32_t lp_image_width(const LpImage *img);
 uint32_t lp_image_height(const LpImage *img);

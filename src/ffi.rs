@@ -146,10 +146,12 @@ pub unsafe extern "C" fn lp_image_read(path: *const c_char, out: *mut *mut LpIma
     })
 }
 
-/// Copies `width * height * 3` floats from `rgb` into a new image.
+/// Copies `width * height * 3` floats from `rgb`, which holds `len` floats,
+/// into a new image; a `len` other than `width * height * 3` is refused.
 #[no_mangle]
 pub unsafe extern "C" fn lp_image_from_rgb(
     rgb: *const f32,
+    len: usize,
     width: u32,
     height: u32,
     out: *mut *mut LpImage,
@@ -163,6 +165,11 @@ pub unsafe extern "C" fn lp_image_from_rgb(
             .and_then(|n| n.checked_mul(3))
             .filter(|&n| n > 0 && n <= 3 << 28)
             .ok_or_else(|| invalid("image size is zero or too large"))?;
+        if len != n {
+            return Err(invalid(&format!(
+                "rgb holds {len} floats but a {width}x{height} image needs {n}"
+            )));
+        }
         let data = std::slice::from_raw_parts(rgb, n).to_vec();
         let img = HdrImage::from_vec(width as usize, height as usize, data)?;
         *out = Box::into_raw(Box::new(LpImage { img }));
@@ -198,6 +205,15 @@ pub unsafe extern "C" fn lp_image_write(img: *const LpImage, path: *const c_char
     guard(|| {
         let img = img.as_ref().ok_or_else(|| invalid("image is NULL"))?;
         let p = path_arg(path, "path")?;
+        // The library writes into folders that exist; it makes none.
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if !dir.is_dir() {
+                return Err(Error::io(
+                    dir,
+                    std::io::Error::new(std::io::ErrorKind::NotFound, "no such folder"),
+                ));
+            }
+        }
         crate::image::io::write_hdr(&p, &img.img)
     })
 }
@@ -219,6 +235,12 @@ pub unsafe extern "C" fn lp_sh_project(img: *const LpImage, coeffs: *mut f32) ->
         let img = img.as_ref().ok_or_else(|| invalid("image is NULL"))?;
         if coeffs.is_null() {
             return Err(invalid("coeffs is NULL"));
+        }
+        let bad = img.img.count_invalid();
+        if bad > 0 {
+            return Err(invalid(&format!(
+                "image has {bad} NaN, infinite or negative samples"
+            )));
         }
         let sh = Sh9::project(&img.img);
         let out = std::slice::from_raw_parts_mut(coeffs, 27);
@@ -242,6 +264,9 @@ pub unsafe extern "C" fn lp_sh_irradiance(
             return Err(invalid("coeffs, n or out_rgb is NULL"));
         }
         let c = std::slice::from_raw_parts(coeffs, 27);
+        if c.iter().any(|v| !v.is_finite()) {
+            return Err(invalid("coefficients must be finite"));
+        }
         let mut sh = Sh9::zero();
         for k in 0..9 {
             sh.coeffs[k] = [c[3 * k], c[3 * k + 1], c[3 * k + 2]];

@@ -93,6 +93,38 @@ fn bad_calls_return_errors_naming_the_problem() {
         assert!(lp_image_data(std::ptr::null()).is_null());
         lp_image_free(std::ptr::null_mut());
 
+        // A buffer shorter than the size given is refused, not read past.
+        let short = [1f32; 5];
+        assert_eq!(
+            lp_image_from_rgb(short.as_ptr(), short.len(), 4, 2, &mut img),
+            LpStatus::Invalid
+        );
+        assert!(last_error().contains("holds 5 floats"), "{}", last_error());
+        // NaN is refused alike by the SH projection and evaluation.
+        let mut px = vec![1f32; 8 * 4 * 3];
+        px[7] = f32::NAN;
+        assert_eq!(
+            lp_image_from_rgb(px.as_ptr(), px.len(), 8, 4, &mut img),
+            LpStatus::Ok
+        );
+        let mut coeffs = [0f32; 27];
+        assert_eq!(lp_sh_project(img, coeffs.as_mut_ptr()), LpStatus::Invalid);
+        assert!(last_error().contains("NaN"), "{}", last_error());
+        coeffs[4] = f32::NAN;
+        let up = [0f32, 1.0, 0.0];
+        assert_eq!(
+            lp_sh_irradiance(coeffs.as_ptr(), up.as_ptr(), [0f32; 3].as_mut_ptr()),
+            LpStatus::Invalid
+        );
+        // No folder is made for a write.
+        let deep = dir.path().join("no/such/folder/p.exr");
+        let cd = CString::new(deep.to_str().unwrap()).unwrap();
+        assert_eq!(lp_image_write(img, cd.as_ptr()), LpStatus::Io);
+        assert!(!dir.path().join("no").exists());
+        lp_image_free(img);
+        img = std::ptr::null_mut();
+        let _ = img;
+
         let zero = [0f32; 3];
         assert_eq!(
             lp_sh_irradiance(
@@ -111,7 +143,10 @@ fn images_round_trip_and_a_constant_probe_gives_pi_l() {
         let (w, h) = (32u32, 16u32);
         let px: Vec<f32> = (0..w * h * 3).map(|_| 0.75).collect();
         let mut img: *mut LpImage = std::ptr::null_mut();
-        assert_eq!(lp_image_from_rgb(px.as_ptr(), w, h, &mut img), LpStatus::Ok);
+        assert_eq!(
+            lp_image_from_rgb(px.as_ptr(), px.len(), w, h, &mut img),
+            LpStatus::Ok
+        );
         assert_eq!((lp_image_width(img), lp_image_height(img)), (w, h));
         let dir = tempfile::tempdir().unwrap();
         let path = CString::new(dir.path().join("c.exr").to_str().unwrap()).unwrap();
@@ -168,7 +203,7 @@ int main(int argc, char **argv) {
     float px[32 * 16 * 3];
     for (int i = 0; i < 32 * 16 * 3; i++) px[i] = 2.0f;
     LpImage *img = NULL;
-    if (lp_image_from_rgb(px, 32, 16, &img) != LP_OK) return 2;
+    if (lp_image_from_rgb(px, 32 * 16 * 3, 32, 16, &img) != LP_OK) return 2;
     if (lp_image_write(img, argv[1]) != LP_OK) return 3;
     LpImage *back = NULL;
     if (lp_image_read(argv[1], &back) != LP_OK) return 4;
@@ -229,7 +264,7 @@ fn two_constant_probes(dir: &Path) {
         let c_path = CString::new(dir.join(format!("probes/p{k}.exr")).to_str().unwrap()).unwrap();
         let mut img = std::ptr::null_mut();
         assert_eq!(
-            unsafe { lp_image_from_rgb(px.as_ptr(), 64, 32, &mut img) },
+            unsafe { lp_image_from_rgb(px.as_ptr(), px.len(), 64, 32, &mut img) },
             LpStatus::Ok
         );
         assert_eq!(

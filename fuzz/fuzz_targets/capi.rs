@@ -367,7 +367,7 @@ unsafe fn run_op(op: &Op, h: &mut Handles, files: &Path) {
             let rgb = if *null_rgb { null() } else { buf.as_ptr() };
             let mut out: *mut LpImage = null_mut();
             let outp = if *null_out { null_mut() } else { &mut out };
-            let s = lp_image_from_rgb(rgb, *width as u32, *height as u32, outp);
+            let s = lp_image_from_rgb(rgb, buf.len(), *width as u32, *height as u32, outp);
             check_status(s, "lp_image_from_rgb");
             if s == LpStatus::Ok {
                 assert!(!out.is_null());
