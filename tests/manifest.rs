@@ -264,3 +264,28 @@ fn a_probe_of_one_exposure_is_warned_about() {
     let id = first.file_name().unwrap().to_string_lossy();
     assert!(err.contains(&format!("probe {id}: one exposure")), "{err}");
 }
+
+#[test]
+fn a_drafted_manifest_for_hdr_probes_with_brackets_beside_them_runs() {
+    // The probes' HDR files are kept: their brackets are commented out in the
+    // draft, so the response cannot be recovered from them.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("capture");
+    let p = SynthParams {
+        width: 64,
+        n_frames: 2,
+        n_probes: 2,
+        seed: 9,
+        name: "m".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    let text = Manifest::draft(&dir).unwrap();
+    assert!(text.contains("# brackets = "), "{text}");
+    assert!(!text.contains("response = \"recover\""), "{text}");
+    let mf = dir.join("lumiprobe.toml");
+    std::fs::write(&mf, text).unwrap();
+    let m = Manifest::load(&mf).unwrap();
+    let (scene, _) = prepare(&m, false).unwrap();
+    assert_eq!(scene.unwrap().probes.len(), 2);
+}

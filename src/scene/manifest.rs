@@ -482,8 +482,22 @@ impl Manifest {
         } else {
             None
         };
-        let any_brackets =
-            folder.join("probes").is_dir() && walk_has_images(&folder.join("probes"));
+        // Brackets the manifest will use: a probe folder of images with no HDR
+        // file beside it (a probe with one keeps its brackets commented out).
+        let pdir = folder.join("probes");
+        let any_brackets = pdir.is_dir()
+            && std::fs::read_dir(&pdir)
+                .map_err(|e| Error::io(&pdir, e))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_dir())
+                .any(|d| {
+                    let id = d.file_name().map(|n| n.to_string_lossy().into_owned());
+                    let has_hdr = id.is_some_and(|id| {
+                        pdir.join(format!("{id}.exr")).is_file()
+                            || pdir.join(format!("{id}.hdr")).is_file()
+                    });
+                    !has_hdr && walk_has_images(&d)
+                });
         s += "[camera]\n";
         match documented {
             Some(r) if !any_brackets => {
@@ -497,7 +511,6 @@ impl Manifest {
             }
         }
         s += "gain = \"auto\"          # or the frames' exposure gain\n\n";
-        let pdir = folder.join("probes");
         let mut n_probes = 0;
         if pdir.is_dir() {
             let mut ids: Vec<String> = std::fs::read_dir(&pdir)
