@@ -230,3 +230,33 @@ fn shards_then_one_run_equal_one_run_with_the_walk_as_a_sequence() {
         frames.len()
     );
 }
+
+#[test]
+fn a_rerun_resumes_however_the_scene_path_is_spelled() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sc = scene(tmp.path(), 3);
+    let rel = sc.strip_prefix(tmp.path()).unwrap().to_path_buf();
+    let out = tmp.path().join("out");
+    let run = |scene_arg: &Path, cwd: &Path| {
+        let o = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .current_dir(cwd)
+            .args(["-q", "run"])
+            .arg(scene_arg)
+            .arg("--out")
+            .arg(&out)
+            .args(["--method", "warp"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
+                .unwrap();
+        r["resumed"].as_array().unwrap().len()
+    };
+    assert_eq!(run(&rel, tmp.path()), 0);
+    // Absolute, and relative from another folder: every frame resumed.
+    assert_eq!(run(&sc, Path::new("/")), 3);
+    let sub = tmp.path().join("elsewhere");
+    std::fs::create_dir_all(&sub).unwrap();
+    assert_eq!(run(&Path::new("..").join(&rel), &sub), 3);
+}

@@ -275,11 +275,15 @@ pub fn load_probe(
     Ok((img, repaired))
 }
 
-/// Identifies a file's version for cache keys: path, size and modification time.
+/// Identifies a file's version for cache keys: its canonical path (however the
+/// command spelled it: relative, absolute, through a link), size and
+/// modification time.
 pub(crate) fn file_stamp(p: &Path) -> String {
+    let canonical = p.canonicalize();
+    let shown = canonical.as_deref().unwrap_or(p);
     match std::fs::metadata(p) {
-        Ok(m) => format!("{}:{}", p.display(), size_and_time(&m)),
-        Err(_) => format!("{}:missing", p.display()),
+        Ok(m) => format!("{}:{}", shown.display(), size_and_time(&m)),
+        Err(_) => format!("{}:missing", shown.display()),
     }
 }
 
