@@ -150,9 +150,9 @@ fn cli(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-/// A synthetic capture as a camera gives it (the probes' HDR files removed:
-/// brackets only); returns the path its manifest is to have.
-fn bracket_capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std::path::PathBuf {
+/// A synthetic capture (HDR probes and their brackets); returns the path its
+/// manifest is to have.
+fn capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std::path::PathBuf {
     let dir = root.join("capture");
     let p = SynthParams {
         width,
@@ -163,13 +163,20 @@ fn bracket_capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std
         ..Default::default()
     };
     synthesize(&p).write(&dir).unwrap();
-    for e in std::fs::read_dir(dir.join("probes")).unwrap() {
+    dir.join("lumiprobe.toml")
+}
+
+/// A synthetic capture as a camera gives it (the probes' HDR files removed:
+/// brackets only); returns the path its manifest is to have.
+fn bracket_capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std::path::PathBuf {
+    let mf = capture(root, width, seed, n_frames);
+    for e in std::fs::read_dir(mf.parent().unwrap().join("probes")).unwrap() {
         let path = e.unwrap().path();
         if path.extension().is_some_and(|x| x == "exr") {
             std::fs::remove_file(path).unwrap();
         }
     }
-    dir.join("lumiprobe.toml")
+    mf
 }
 
 /// Drafts the capture's manifest with `method`.
@@ -270,20 +277,10 @@ fn a_drafted_manifest_for_hdr_probes_with_brackets_beside_them_runs() {
     // The probes' HDR files are kept: their brackets are commented out in the
     // draft, so the response cannot be recovered from them.
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("capture");
-    let p = SynthParams {
-        width: 64,
-        n_frames: 2,
-        n_probes: 2,
-        seed: 9,
-        name: "m".into(),
-        ..Default::default()
-    };
-    synthesize(&p).write(&dir).unwrap();
-    let text = Manifest::draft(&dir).unwrap();
+    let mf = capture(tmp.path(), 64, 9, 2);
+    let text = Manifest::draft(mf.parent().unwrap()).unwrap();
     assert!(text.contains("# brackets = "), "{text}");
     assert!(!text.contains("response = \"recover\""), "{text}");
-    let mf = dir.join("lumiprobe.toml");
     std::fs::write(&mf, text).unwrap();
     let m = Manifest::load(&mf).unwrap();
     let (scene, _) = prepare(&m, false).unwrap();

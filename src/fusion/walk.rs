@@ -326,4 +326,44 @@ mod tests {
         let m = mends(&frames, &two_sided());
         assert!(m.iter().all(|m| m.is_empty()), "{m:?}");
     }
+
+    proptest::proptest! {
+        /// Over random walks: a hold only takes light away, never below the
+        /// frame's own support, and only where both neighbours may hold the
+        /// source (so nothing is held in the first or last frame).
+        #[test]
+        fn holds_take_light_away_and_keep_the_frames_support(
+            walk in proptest::collection::vec(
+                proptest::collection::vec(
+                    (0.0f32..360.0, 1e-4f64..0.5, 0.0f64..100.0, 0.0f64..100.0),
+                    0..5,
+                ),
+                3..9,
+            )
+        ) {
+            let frames: Vec<Vec<WalkRegion>> = walk
+                .iter()
+                .map(|rs| {
+                    rs.iter()
+                        .enumerate()
+                        .map(|(i, &(yaw, sa, added, sup))| WalkRegion {
+                            supported: sup,
+                            ..region(i, yaw, sa, added)
+                        })
+                        .collect()
+                })
+                .collect();
+            let m = mends(&frames, &two_sided());
+            let last = frames.len() - 1;
+            for (t, holds) in m.iter().enumerate() {
+                proptest::prop_assert!(holds.is_empty() || (t > 0 && t < last));
+                for h in holds {
+                    let r = &frames[t][h.region];
+                    proptest::prop_assert!(h.power < r.added);
+                    proptest::prop_assert!(h.power >= r.supported.min(r.added));
+                    proptest::prop_assert!(h.power.is_finite() && h.power >= 0.0);
+                }
+            }
+        }
+    }
 }
