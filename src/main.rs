@@ -9,6 +9,8 @@ use lumiprobe::warp::{CandidateMode, ProbeTonemap};
 use lumiprobe::{Error, HdrImage, Result};
 use std::path::{Path, PathBuf};
 
+mod cmd;
+
 #[derive(Parser)]
 #[command(
     name = "lumiprobe",
@@ -407,6 +409,9 @@ enum Cmd {
         #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
         exposure: f32,
     },
+    /// Write a run's probes as engines load them: equirect .hdr/.exr, KTX2
+    /// prefiltered cubes, SH for three.js; world-aligned (+Y or +Z up) or per camera.
+    Export(cmd::export::ExportArgs),
     /// Composite a glTF model, lit by each frame's probe, over the SDR frames (the
     /// thesis's viewer as PNGs and, with ffmpeg, an MP4).
     Composite {
@@ -1466,6 +1471,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 eprintln!("wrote {}", output.display());
             }
         }
+        Cmd::Export(args) => cmd::export::run(args, cli.quiet)?,
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args, cli.quiet)?;
         }

@@ -22,11 +22,9 @@
 //! the manifest is written after every image, a directory with a `prefilter.json` is
 //! complete.
 //!
-//! **KTX2 is not written**: there is no pure-Rust KTX2 writer we trust (cube maps
-//! with float mips and correct data-format descriptors), and a hand-rolled one
-//! could not be validated here. The EXR files plus the manifest carry the same data;
-//! convert them with an external tool (e.g. `ktx create`) if a GPU container is
-//! needed.
+//! These files are lumiprobe's own layout. For engines, `lumiprobe export`
+//! ([`crate::pipeline::export`]) writes the same cubes as KTX 2.0 files
+//! ([`super::ktx2`]), world-aligned.
 
 use super::brdf_lut::{brdf_lookup, brdf_lut, DEFAULT_LUT_SAMPLES, DEFAULT_LUT_SIZE};
 use super::irradiance::{irradiance_cube, DEFAULT_IRRADIANCE_FACE_SIZE};

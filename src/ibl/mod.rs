@@ -7,6 +7,7 @@
 pub mod brdf_lut;
 pub mod export;
 pub mod irradiance;
+pub mod ktx2;
 pub mod prefilter;
 pub mod sh;
 

@@ -7,6 +7,7 @@ pub mod composite;
 pub mod corpus;
 pub mod demo;
 pub mod evaluate;
+pub mod export;
 pub mod plan;
 pub mod probe_set;
 pub mod render_eval;

@@ -1,0 +1,218 @@
+//! `lumiprobe export` end to end on a synthetic scene, its files read by real
+//! clients: the KTX2 cubes by npm `ktx-parse` (what three.js's KTX2Loader is
+//! built on; installed into tools/js by scripts/setup.sh and scripts/test.sh),
+//! the equirect files by lumiprobe's own readers.
+
+use lumiprobe::ibl::ktx2::gl_face_dir;
+use lumiprobe::image::io::read_hdr;
+use lumiprobe::image::luminance;
+use lumiprobe::scene::Scene;
+use lumiprobe::sphere::pixel_to_dir;
+use lumiprobe::synth::{synthesize, SynthParams};
+use std::path::Path;
+use std::process::Command;
+
+/// A synthetic scene whose ground truth stands in for a run's predictions.
+fn scene_with_predictions(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = root.join("scene");
+    let p = SynthParams {
+        width: 128,
+        n_frames: 3,
+        n_probes: 2,
+        seed: 5,
+        name: "x".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    let pred = root.join("run");
+    std::fs::create_dir_all(&pred).unwrap();
+    let scene = Scene::load(&dir).unwrap();
+    for f in &scene.frames {
+        std::fs::copy(
+            f.ground_truth.as_ref().unwrap(),
+            pred.join(format!("{}.exr", f.id)),
+        )
+        .unwrap();
+    }
+    (dir, pred)
+}
+
+fn lumiprobe(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// What `tools/js/ktx2_check.mjs` reports of a KTX2 file. Fails, with what to
+/// do, when node or the client is missing: this test does not pass without it.
+fn ktx_parse(file: &Path) -> serde_json::Value {
+    let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/js");
+    assert!(
+        js.join("node_modules/ktx-parse").is_dir(),
+        "the KTX2 client is not installed: run `npm ci --prefix tools/js` (scripts/test.sh does)"
+    );
+    let out = Command::new("node")
+        .arg(js.join("ktx2_check.mjs"))
+        .arg(file)
+        .output()
+        .expect("node is needed to run the KTX2 client (Debian: apt install nodejs npm)");
+    assert!(
+        out.status.success(),
+        "ktx-parse could not read {}: {}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Direction of the brightest pixel of an equirect.
+fn brightest(img: &lumiprobe::HdrImage) -> glam::Vec3 {
+    let (w, h) = (img.width(), img.height());
+    let (mut best, mut at) = (f32::MIN, (0, 0));
+    for y in 0..h {
+        for x in 0..w {
+            let l = luminance(img.get(x, y));
+            if l > best {
+                best = l;
+                at = (x, y);
+            }
+        }
+    }
+    pixel_to_dir(at.0, at.1, w, h)
+}
+
+#[test]
+fn export_writes_cubes_a_real_client_reads_with_the_light_where_the_world_has_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, pred) = scene_with_predictions(tmp.path());
+    let out = tmp.path().join("export");
+    let o = lumiprobe(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--probes",
+        pred.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--face-size",
+        "32",
+        "--mips",
+        "4",
+        "--samples",
+        "64",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
+    assert_eq!(report["orientation"], "y");
+    assert_eq!(report["frames"].as_array().unwrap().len(), 1);
+    // The cube holds the probe's light: luminance power of mip 0 against the
+    // equirect's, within 1%.
+    let power = &report["frames"][0]["power"];
+    let (eq, cube) = (power[0].as_f64().unwrap(), power[1].as_f64().unwrap());
+    assert!((cube / eq - 1.0).abs() < 0.01, "{cube} vs {eq}");
+
+    let spec = ktx_parse(&out.join("frame_001_specular.ktx2"));
+    assert_eq!(spec["vkFormat"], 97, "RGBA16F");
+    assert_eq!(
+        (spec["pixelWidth"].as_u64(), spec["faceCount"].as_u64()),
+        (Some(32), Some(6))
+    );
+    assert_eq!(spec["levelCount"], 4);
+    let bytes: Vec<u64> = spec["levelBytes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(bytes, [32, 16, 8, 4].map(|n| 6 * n * n * 8));
+    assert_eq!(spec["transferFunction"], 1, "linear");
+    assert_eq!(
+        spec["keyValue"]["lumiprobe.roughness"],
+        "0 0.33333334 0.6666667 1"
+    );
+    assert_eq!(spec["keyValue"]["lumiprobe.up"], "+y");
+    let irr = ktx_parse(&out.join("frame_001_irradiance.ktx2"));
+    assert_eq!(
+        (irr["pixelWidth"].as_u64(), irr["levelCount"].as_u64()),
+        (Some(32), Some(1))
+    );
+
+    // The brightest texel the client decodes looks where the exported equirect
+    // (read back by lumiprobe) has its brightest pixel, and that is where the
+    // frame's pose puts the light in y-up world axes.
+    let b = &spec["brightest"];
+    let n = 32.0;
+    let dir = gl_face_dir(
+        b["face"].as_u64().unwrap() as usize,
+        (b["x"].as_f64().unwrap() as f32 + 0.5) / n,
+        (b["y"].as_f64().unwrap() as f32 + 0.5) / n,
+    )
+    .normalize();
+    let hdr = read_hdr(&out.join("frame_001.hdr")).unwrap();
+    let exr = read_hdr(&out.join("frame_001.exr")).unwrap();
+    let in_hdr = brightest(&hdr);
+    assert!(in_hdr.angle_between(brightest(&exr)).to_degrees() < 3.0);
+    assert!(
+        dir.angle_between(in_hdr).to_degrees() < 6.0,
+        "cube {dir} vs equirect {in_hdr}"
+    );
+    let s = Scene::load(&scene).unwrap();
+    let gt = read_hdr(s.frames[1].ground_truth.as_ref().unwrap()).unwrap();
+    let world = s.frames[1].pose.world_from_camera * brightest(&gt);
+    let y_up = glam::Vec3::new(world.x, world.z, -world.y);
+    assert!(
+        dir.angle_between(y_up).to_degrees() < 6.0,
+        "cube {dir} vs world {y_up}"
+    );
+
+    // three.js's LightProbe JSON: 27 numbers whose irradiance peaks towards the
+    // light's side.
+    let sh: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("frame_001_sh.json")).unwrap()).unwrap();
+    assert_eq!(sh["type"], "LightProbe");
+    assert_eq!(sh["sh"].as_array().unwrap().len(), 27);
+}
+
+#[test]
+fn export_says_what_is_missing_in_the_users_words() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, pred) = scene_with_predictions(tmp.path());
+    let out = tmp.path().join("export");
+    let run = |extra: &[&str]| {
+        let mut a = vec![
+            "export",
+            scene.to_str().unwrap(),
+            "--probes",
+            pred.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--formats",
+            "hdr",
+        ];
+        a.extend_from_slice(extra);
+        lumiprobe(&a)
+    };
+    let o = run(&["--frames", "9"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("frame 9 is not in the scene, which has 3 frames"),
+        "{err}"
+    );
+    std::fs::remove_file(pred.join("frame_002.exr")).unwrap();
+    let o = run(&["--frames", "2"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("frame_002.exr") && err.contains("lumiprobe run"),
+        "{err}"
+    );
+    // Exporting all frames skips the one not yet predicted, and says so.
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("1 frames have no prediction"));
+    assert!(out.join("frame_000.hdr").is_file() && !out.join("frame_002.hdr").exists());
+    assert!(!err.contains("panicked"));
+}
