@@ -72,20 +72,12 @@ pub struct FusionParams {
     /// Data cost of the calibrated SDR label in the base method's graph cut where the
     /// frame did not clip (probe labels cost Dc + Df + Dd, about 0.3 to 2).
     pub sdr_label_cost: f32,
-    /// Solid angle (steradians) each of the two probes must see of a light, above
-    /// the white point, for the surface it lies on to be fitted and the light
-    /// carried to the frame pixel by pixel (0: never); smaller lights are carried
-    /// by power. 0.01 sr is a disc 3.2 degrees in radius: a panel or a window, not
-    /// a bulb. It replaces a count of 16 pixels, the same solid angle at the
-    /// corpus's 256x128 near the horizon, but 0.0024 sr at the shared scenes'
-    /// 512x256 and less near the poles. Measured, irradiance error dev / val /
-    /// shared / val at 128x64: 16 px 0.2073 / 0.1381 / 0.0314 / 0.1796; 0.005 sr
-    /// 0.2110 / 0.1386 / 0.0314; 0.01 sr 0.2123 / 0.1381 / 0.0310 / 0.1782; 0.02
-    /// sr 0.2093 / 0.1381 / 0.0346; never 0.2270 / 0.1569 / 0.0428. Not retuned:
-    /// the dev split moves by scene both ways (s0002 0.80 -> 0.89, its overhead
-    /// lamps fall below; s0011 0.098 -> 0.089), with no trend across values.
-    #[serde(default = "default_surface_sr")]
-    pub surface_sr: f64,
+    /// Pixels both probes must see of a light to fit the surface it lies on and
+    /// carry it to the frame pixel by pixel (0: never). A count of samples the
+    /// plane fit needs, not a size of the source: as a solid angle no value
+    /// served both 256x128 and 512x256 (docs/fusion-ledger.md).
+    #[serde(default = "default_surface_px")]
+    pub surface_px: usize,
     /// Largest disagreement (mean absolute log-luminance difference) between the
     /// two probes' views of a light through its fitted surface for the surface to
     /// be used.
@@ -152,8 +144,8 @@ fn default_far_cover() -> f64 {
     0.3
 }
 
-fn default_surface_sr() -> f64 {
-    0.01
+fn default_surface_px() -> usize {
+    16
 }
 
 fn default_surface_err() -> f64 {
@@ -182,7 +174,7 @@ impl Default for FusionParams {
             light_join_deg: default_light_join_deg(),
             max_intensity_ratio: default_intensity_ratio(),
             sdr_label_cost: 0.05,
-            surface_sr: default_surface_sr(),
+            surface_px: default_surface_px(),
             max_surface_err: default_surface_err(),
             far_probes: default_far_probes(),
             min_far_cover: default_far_cover(),

@@ -531,7 +531,7 @@ fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance
     .unwrap();
     assert!(rep.blobs.iter().any(|b| b.reprojected));
     let plain = FusionParams {
-        surface_sr: 0.0,
+        surface_px: 0,
         ..FusionParams::default()
     };
     let placed_plain = lights_at_frame((&ia, &a), (&ib, &b), &frame, white, &plain);

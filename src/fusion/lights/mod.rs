@@ -17,11 +17,6 @@ use crate::scene::{distance_m, Pose};
 use crate::sphere::{pixel_to_dir, row_solid_angles};
 use glam::Vec3;
 
-/// Fewest pixels a light must have for its surface to be fitted: a plane through
-/// the triangulated point has two free parameters, and a third sample leaves one
-/// to check the fit by (a numerical floor, not a setting about the scene).
-const MIN_FIT_PIXELS: usize = 3;
-
 /// A bright region of one panorama.
 #[derive(Clone, Debug, Default)]
 pub struct Light {
@@ -240,11 +235,7 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
             continue;
         }
         let (la, lb) = (&la[l.from.0], &lb[l.from.1]);
-        // The solid angle says whether the light is broad enough to have a
-        // surface worth fitting; the pixel floor is only what a plane fit needs
-        // to be determined at all.
-        let broad = |l: &Light| l.solid_angle >= p.surface_sr && l.pixels.len() >= MIN_FIT_PIXELS;
-        let surface = (p.surface_sr > 0.0 && broad(la) && broad(lb))
+        let surface = (p.surface_px > 0 && la.pixels.len().min(lb.pixels.len()) >= p.surface_px)
             .then(|| {
                 let point = if l.at_infinity {
                     Vec3::ZERO

@@ -437,30 +437,3 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
     };
     assert!(sky(vec![window]).radiance(d).is_some());
 }
-
-#[test]
-fn whether_a_lights_surface_is_fitted_does_not_depend_on_the_resolution() {
-    // The panel and its glow, as the smaller of the two probes sees it, measured
-    // at the finest resolution.
-    let white = 2.0;
-    let (a, b, ia, ib) = two_probes(512, 256);
-    let seen = find_lights(&ia, &a, white, 0.7)[0]
-        .solid_angle
-        .min(find_lights(&ib, &b, white, 0.7)[0].solid_angle);
-    for (factor, fitted) in [(0.7, true), (1.4, false)] {
-        let p = FusionParams {
-            surface_sr: factor * seen,
-            ..FusionParams::default()
-        };
-        for (w, h) in [(128, 64), (256, 128), (512, 256)] {
-            let (a, b, ia, ib) = two_probes(w, h);
-            let pair = pair_lights((&ia, &a), (&ib, &b), white, &p);
-            assert_eq!(pair.lights.len(), 1, "{w}x{h}");
-            assert_eq!(
-                pair.lights[0].1.is_some(),
-                fitted,
-                "{w}x{h}: threshold {factor} x {seen} sr"
-            );
-        }
-    }
-}
