@@ -412,6 +412,9 @@ enum Cmd {
     /// Write a run's probes as engines load them: equirect .hdr/.exr, KTX2
     /// prefiltered cubes, SH for three.js; world-aligned (+Y or +Z up) or per camera.
     Export(cmd::export::ExportArgs),
+    /// The manifest's cache: `cache gc MANIFEST` removes what no run of it would
+    /// read again.
+    Cache(cmd::cache::CacheArgs),
     /// Composite a glTF model, lit by each frame's probe, over the SDR frames (the
     /// thesis's viewer as PNGs and, with ffmpeg, an MP4).
     Composite {
@@ -1472,6 +1475,7 @@ fn real_main(cli: Cli) -> Result<()> {
             }
         }
         Cmd::Export(args) => cmd::export::run(args, cli.quiet)?,
+        Cmd::Cache(args) => cmd::cache::run(args, cli.quiet)?,
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args, cli.quiet)?;
         }

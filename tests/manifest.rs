@@ -286,3 +286,126 @@ fn a_drafted_manifest_for_hdr_probes_with_brackets_beside_them_runs() {
     let (scene, _) = prepare(&m, false).unwrap();
     assert_eq!(scene.unwrap().probes.len(), 2);
 }
+
+#[test]
+fn the_gain_is_cached_and_cache_gc_removes_only_what_the_manifest_no_longer_uses() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mf = bracket_capture(tmp.path(), 64, 9, 2);
+    write_draft(&mf, "warp");
+    let m = Manifest::load(&mf).unwrap();
+    let (scene, first) = prepare(&m, false).unwrap();
+    let gain = scene.unwrap().path_gain;
+    let state = |plan: &lumiprobe::pipeline::plan::Plan, name: &str| {
+        plan.stages
+            .iter()
+            .find(|s| s.name == name)
+            .unwrap_or_else(|| panic!("no stage {name}: {}", plan.to_text()))
+            .state
+    };
+    assert_eq!(state(&first, "calibrate gain"), StageState::Computed);
+    // The second preparation reads the gain instead of calibrating again.
+    let (scene, second) = prepare(&m, false).unwrap();
+    assert_eq!(state(&second, "calibrate gain"), StageState::Cached);
+    assert_eq!(scene.unwrap().path_gain, gain);
+    // Stale entries: an old merge, an old response, an old localization, an
+    // interrupted write. What the plan uses stays.
+    let cache = m.output.folder.join("cache");
+    let merged = std::fs::read_dir(cache.join("probes"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .next()
+        .unwrap();
+    let stale = [
+        cache.join("probes").join("probe_00-0123456789abcdef.exr"),
+        cache.join("response-0123456789abcdef.json"),
+        cache.join("localize-0123456789abcdef"),
+        cache.join("gain-0123456789abcdef.json.tmp"),
+    ];
+    std::fs::copy(&merged, &stale[0]).unwrap();
+    std::fs::write(&stale[1], "{}").unwrap();
+    std::fs::create_dir_all(&stale[2]).unwrap();
+    std::fs::write(stale[2].join("poses.json"), "[]").unwrap();
+    std::fs::write(&stale[3], "{").unwrap();
+    let mf_s = mf.to_str().unwrap();
+    // A dry run lists them and removes nothing.
+    let listed = std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(["cache", "gc", mf_s, "--dry-run"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&listed.stderr);
+    assert!(listed.status.success(), "{err}");
+    assert!(err.contains("would remove 4 entries"), "{err}");
+    assert!(stale.iter().all(|p| p.exists()));
+    let before: Vec<_> = first.live.clone();
+    cli(&["-q", "cache", "gc", mf_s]);
+    assert!(stale.iter().all(|p| !p.exists()));
+    // Nothing the plan uses was touched: the next preparation computes nothing.
+    assert!(
+        before.iter().filter(|p| p.exists()).count() >= 3,
+        "{before:?}"
+    );
+    let (_, after) = prepare(&m, true).unwrap();
+    assert!(
+        after.stages.iter().all(|s| s.state != StageState::Computed),
+        "{}",
+        after.to_text()
+    );
+}
+
+#[test]
+fn exposure_times_out_of_the_files_order_are_refused_with_the_order_shown() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mf = bracket_capture(tmp.path(), 64, 10, 1);
+    let probes = mf.parent().unwrap().join("probes");
+    let folder = std::fs::read_dir(&probes)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_dir())
+        .min()
+        .unwrap();
+    let mut photos: Vec<_> = std::fs::read_dir(&folder)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .collect();
+    photos.sort();
+    assert!(photos.len() >= 3);
+    // Times that follow each photo's brightness are right; reversed, wrong.
+    let mean = |p: &std::path::Path| {
+        let img = lumiprobe::image::io::read_sdr(p).unwrap();
+        img.data().iter().map(|&v| v as f64).sum::<f64>() / img.data().len() as f64
+    };
+    let means: Vec<f64> = photos.iter().map(|p| mean(p)).collect();
+    let mut rank: Vec<usize> = (0..photos.len()).collect();
+    rank.sort_by(|&a, &b| means[a].total_cmp(&means[b]));
+    let mut right = vec![0.0; photos.len()];
+    for (k, &i) in rank.iter().enumerate() {
+        right[i] = 0.001 * 2f64.powi(k as i32);
+    }
+    let wrong: Vec<f64> = rank.iter().rev().map(|&i| right[i]).collect();
+    let merge = |times: &[f64]| {
+        let list: Vec<String> = times.iter().map(|t| t.to_string()).collect();
+        let mut args: Vec<String> = vec!["merge".into()];
+        args.extend(photos.iter().map(|p| p.to_string_lossy().into_owned()));
+        args.extend(["--times".into(), list.join(","), "--out".into()]);
+        args.push(tmp.path().join("m.exr").to_string_lossy().into_owned());
+        std::process::Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args(&args)
+            .output()
+            .unwrap()
+    };
+    let bad = merge(&wrong);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success(), "{err}");
+    assert!(
+        err.contains("must follow the files sorted by name"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"));
+    let good = merge(&right);
+    assert!(
+        good.status.success(),
+        "{}",
+        String::from_utf8_lossy(&good.stderr)
+    );
+}

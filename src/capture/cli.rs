@@ -58,7 +58,7 @@ pub fn load_exposures(paths: &[PathBuf], times: Option<&[f64]>) -> Result<Vec<Ex
     if let Some(t) = times {
         if t.len() != paths.len() {
             return Err(Error::Invalid(format!(
-                "--times gives {} values for {} brackets",
+                "{} exposure times given for {} brackets (`--times` of merge, `times` of a manifest probe)",
                 t.len(),
                 paths.len()
             )));
@@ -79,7 +79,8 @@ pub fn load_exposures(paths: &[PathBuf], times: Option<&[f64]>) -> Result<Vec<Ex
                     .ok_or_else(|| {
                         Error::format(
                             p,
-                            "no readable Exif ExposureTime; give the exposure times with --times",
+                            "no readable Exif ExposureTime: give the exposure times \
+                             (`--times` of merge, `times` of a manifest probe)",
                         )
                     })?,
             };
@@ -89,7 +90,67 @@ pub fn load_exposures(paths: &[PathBuf], times: Option<&[f64]>) -> Result<Vec<Ex
                 time_s,
             })
         })
-        .collect()
+        .collect::<Result<Vec<_>>>()
+        .and_then(|e| {
+            if times.is_some() {
+                check_time_order(&e)?;
+            }
+            Ok(e)
+        })
+}
+
+/// Mean 8-bit code of an image.
+fn mean_code(img: &crate::image::SdrImage) -> f64 {
+    let d = img.data();
+    d.iter().map(|&v| v as f64).sum::<f64>() / d.len().max(1) as f64
+}
+
+/// Given times must follow the files (sorted by name, as brackets are listed):
+/// of two photos neither black nor white, the one given the longer time must
+/// be the brighter. Refuses times that contradict the photos, naming the files
+/// in order with their brightness.
+fn check_time_order(exps: &[Exposure]) -> Result<()> {
+    // Codes a well-exposed mean lies between, and the least brightness step and
+    // time ratio that count as a contradiction (JPEG noise and a shift of the
+    // view between brackets move the mean by less).
+    const LOW: f64 = 8.0;
+    const HIGH: f64 = 247.0;
+    const MIN_STEP: f64 = 4.0;
+    const MIN_RATIO: f64 = 1.5;
+    let means: Vec<f64> = exps.iter().map(|e| mean_code(&e.image)).collect();
+    for i in 0..exps.len() {
+        for j in 0..exps.len() {
+            let (a, b) = (&exps[i], &exps[j]);
+            let usable = |m: f64| m > LOW && m < HIGH;
+            if usable(means[i])
+                && usable(means[j])
+                && b.time_s > MIN_RATIO * a.time_s
+                && means[i] > means[j] + MIN_STEP
+            {
+                let list: Vec<String> = exps
+                    .iter()
+                    .zip(&means)
+                    .map(|(e, m)| {
+                        format!(
+                            "{} ({} s, mean code {m:.0})",
+                            e.name.file_name().unwrap_or_default().to_string_lossy(),
+                            e.time_s
+                        )
+                    })
+                    .collect();
+                return Err(Error::format(
+                    &b.name,
+                    format!(
+                        "is given a longer exposure time than {} but is darker: the times \
+                         must follow the files sorted by name: {}",
+                        a.name.file_name().unwrap_or_default().to_string_lossy(),
+                        list.join(", ")
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Runs `lumiprobe merge`: loads the brackets, obtains the response, merges,

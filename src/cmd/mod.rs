@@ -2,4 +2,5 @@
 //! prints, around one library call. (The older commands still live in
 //! `main.rs`; they move here as they are touched.)
 
+pub mod cache;
 pub mod export;

@@ -44,6 +44,9 @@ pub struct Stage {
 pub struct Plan {
     /// In order.
     pub stages: Vec<Stage>,
+    /// Every entry of `<output>/cache/` the plan reads or writes (whether it
+    /// exists yet or not): what `lumiprobe cache gc` keeps.
+    pub live: Vec<PathBuf>,
 }
 
 impl Plan {
@@ -166,6 +169,90 @@ fn read_localized(file: &Path) -> Result<(Vec<(String, Pose)>, Vec<(String, Pose
     Ok((probes, frames))
 }
 
+/// A calibrated gain as the cache keeps it.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct CachedGain {
+    gain: f32,
+    frames_used: usize,
+    log_iqr: f32,
+}
+
+/// The cached gain in `file`, if it is there and sound (a damaged entry is
+/// computed again).
+fn read_gain(file: &Path) -> Option<CachedGain> {
+    let text = crate::fsutil::read_to_string_limited(file, 1 << 16).ok()?;
+    let g: CachedGain = serde_json::from_str(&text).ok()?;
+    (g.gain.is_finite() && g.gain > 0.0).then_some(g)
+}
+
+/// What [`cache_gc`] found in a manifest's cache.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GcReport {
+    /// Entries no longer used (removed unless it was a dry run).
+    pub stale: Vec<PathBuf>,
+    /// Their size in bytes.
+    pub bytes: u64,
+    /// Entries still used.
+    pub kept: usize,
+}
+
+/// Bytes of a file, or of everything under a folder.
+fn size_of(p: &Path) -> u64 {
+    match std::fs::symlink_metadata(p) {
+        Ok(m) if m.is_dir() => std::fs::read_dir(p)
+            .map(|rd| rd.flatten().map(|e| size_of(&e.path())).sum())
+            .unwrap_or(0),
+        Ok(m) => m.len(),
+        Err(_) => 0,
+    }
+}
+
+/// Removes (unless `dry_run`) every entry of the manifest's cache
+/// (`<output>/cache/` and its `probes/`) that the manifest's plan no longer
+/// uses: products of inputs or settings that have changed since, and temporary
+/// files of interrupted writes.
+pub fn cache_gc(m: &Manifest, dry_run: bool) -> Result<GcReport> {
+    let (_, plan) = prepare(m, true)?;
+    let cache = m.output.folder.join("cache");
+    let mut rep = GcReport::default();
+    if !cache.is_dir() {
+        return Ok(rep);
+    }
+    let live: std::collections::HashSet<&Path> = plan.live.iter().map(|p| p.as_path()).collect();
+    let list = |dir: &Path| -> Result<Vec<PathBuf>> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map_err(|e| Error::io(dir, e))?
+            .flatten()
+            .map(|e| e.path())
+            .collect();
+        v.sort();
+        Ok(v)
+    };
+    let probes = cache.join("probes");
+    let mut entries = list(&cache)?;
+    if probes.is_dir() {
+        entries.retain(|p| *p != probes);
+        entries.extend(list(&probes)?);
+    }
+    for e in entries {
+        if live.contains(e.as_path()) {
+            rep.kept += 1;
+            continue;
+        }
+        rep.bytes += size_of(&e);
+        if !dry_run {
+            let r = if e.is_dir() {
+                std::fs::remove_dir_all(&e)
+            } else {
+                std::fs::remove_file(&e)
+            };
+            r.map_err(|err| Error::io(&e, err))?;
+        }
+        rep.stale.push(e);
+    }
+    Ok(rep)
+}
+
 /// The scene a command names: a manifest (`.toml`, prepared as `run` prepares
 /// it: merges, response, poses and gain from its cache, computed when missing),
 /// a scene folder or a poses file. With `plan`, the manifest's plan is written
@@ -234,6 +321,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                 "frames-{}",
                 super::fingerprint(&[super::file_stamp(file), fps.to_string()])
             ));
+            plan.live.push(dir.clone());
             let cached = dir.join(".done").exists();
             let state = if cached {
                 StageState::Cached
@@ -289,6 +377,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             ));
             curve_id = super::fingerprint(&parts);
             let file = cache.join(format!("response-{curve_id}.json"));
+            plan.live.push(file.clone());
             if file.exists() {
                 plan.push(
                     "recover response",
@@ -342,6 +431,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             cache
                 .join("probes")
                 .join(format!("{}-{}.exr", p.id, super::fingerprint(&parts)));
+        plan.live.push(file.clone());
         if file.exists() {
             plan.push(
                 format!("merge {}", p.id),
@@ -415,6 +505,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                 )
             ));
             let work = cache.join(format!("localize-{}", super::fingerprint(&parts)));
+            plan.live.push(work.clone());
             let done = work.join("poses.json");
             if done.exists() {
                 plan.push("localize", StageState::Cached, done.display().to_string());
@@ -575,18 +666,56 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             plan.push("gain", StageState::Given, format!("{g}"));
         }
         GainChoice::Auto => {
-            // Cheap and read-only: done in a dry run too, so the frames' state
-            // (which depends on the gain) can be reported.
-            let est = calibrate_gain(&scene, &CalibrateOptions::default())?;
-            scene.path_gain = est.gain;
-            plan.push(
-                "calibrate gain",
-                StageState::Computed,
-                format!(
-                    "{:.5} from {} frames (log IQR {:.3})",
-                    est.gain, est.frames_used, est.log_iqr
-                ),
-            );
+            // Keyed by what the estimate reads: the frames, the probes, the
+            // poses and the response.
+            let mut parts: Vec<String> = Vec::new();
+            for p in &scene.probes {
+                parts.extend(p.hdr.iter().map(|h| super::file_stamp(h)));
+                parts.push(format!("{:?}", p.pose));
+            }
+            for f in &scene.frames {
+                parts.push(super::file_stamp(&f.sdr));
+                parts.push(format!("{:?}", f.pose));
+            }
+            let opts = CalibrateOptions::default();
+            parts.push(format!("{curve_id} {opts:?}"));
+            let file = cache.join(format!("gain-{}.json", super::fingerprint(&parts)));
+            plan.live.push(file.clone());
+            match read_gain(&file) {
+                Some(g) => {
+                    scene.path_gain = g.gain;
+                    plan.push(
+                        "calibrate gain",
+                        StageState::Cached,
+                        format!("{:.5} ({})", g.gain, file.display()),
+                    );
+                }
+                None => {
+                    // Cheap and read-only: done in a dry run too (not saved),
+                    // so the frames' state (which depends on the gain) can be
+                    // reported.
+                    let est = calibrate_gain(&scene, &opts)?;
+                    scene.path_gain = est.gain;
+                    if !dry_run {
+                        let g = CachedGain {
+                            gain: est.gain,
+                            frames_used: est.frames_used,
+                            log_iqr: est.log_iqr,
+                        };
+                        let text = serde_json::to_vec_pretty(&g)
+                            .map_err(|e| Error::Invalid(e.to_string()))?;
+                        crate::fsutil::write_atomic(&file, &text)?;
+                    }
+                    plan.push(
+                        "calibrate gain",
+                        StageState::Computed,
+                        format!(
+                            "{:.5} from {} frames (log IQR {:.3})",
+                            est.gain, est.frames_used, est.log_iqr
+                        ),
+                    );
+                }
+            }
         }
     }
     Ok((Some(scene), plan))

@@ -122,7 +122,40 @@ pub fn decode(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
     guard_panic(name, "OpenEXR", || decode_inner(bytes, name, limits))
 }
 
+/// The data window `(x_min, y_min, x_max, y_max)` a single-part header
+/// declares, read from the bytes (the decoder swaps a reversed window into a
+/// non-empty one, so an empty image would be read as a few pixels that are not
+/// in the file).
+fn declared_data_window(bytes: &[u8]) -> Option<[i32; 4]> {
+    const KEY: &[u8] = b"dataWindow\0box2i\0";
+    let at = bytes
+        .windows(KEY.len())
+        .take(1 << 16)
+        .position(|w| w == KEY)?
+        + KEY.len();
+    let size = i32::from_le_bytes(bytes.get(at..at + 4)?.try_into().ok()?);
+    if size != 16 {
+        return None;
+    }
+    let v = |k: usize| -> Option<i32> {
+        Some(i32::from_le_bytes(
+            bytes.get(at + 4 + 4 * k..at + 8 + 4 * k)?.try_into().ok()?,
+        ))
+    };
+    Some([v(0)?, v(1)?, v(2)?, v(3)?])
+}
+
 fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
+    if let Some([x0, y0, x1, y1]) = declared_data_window(bytes) {
+        if x1 < x0 || y1 < y0 {
+            return Err(Error::format(
+                name,
+                format!(
+                    "OpenEXR image has no pixels: its data window (x {x0} to {x1}, y {y0} to {y1}) is empty"
+                ),
+            ));
+        }
+    }
     let meta = ::exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
         .map_err(|e| exr_error(name, "bad header", e))?;
 
@@ -365,6 +398,20 @@ mod tests {
         HdrImage::from_fn(5, 3, |x, y| {
             [x as f32 * 1.5, y as f32 + 0.25, 1e-3 * (x + y) as f32]
         })
+    }
+
+    #[test]
+    fn an_empty_data_window_is_named_not_decoded_as_phantom_pixels() {
+        let n = Path::new("empty.exr");
+        let mut b = encode(&sample(), n, &ExrWriteOptions::default()).unwrap();
+        assert_eq!(declared_data_window(&b), Some([0, 0, 4, 2]));
+        // A 0x0 image: x_max = x_min - 1, y_max = y_min - 1.
+        let key = b"dataWindow\0box2i\0";
+        let at = b.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        b[at + 8..at + 16].copy_from_slice(&[0xff; 8]);
+        let e = decode(&b, n, &Limits::default()).unwrap_err().to_string();
+        assert!(e.contains("empty.exr") && e.contains("no pixels"), "{e}");
+        assert!(e.contains("x 0 to -1, y 0 to -1"), "{e}");
     }
 
     #[test]
