@@ -369,15 +369,8 @@ enum Cmd {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
-        /// Specular face size of mip 0.
-        #[arg(long, default_value_t = 128)]
-        face_size: usize,
-        /// Specular mips (roughness i / (mips - 1)).
-        #[arg(long, default_value_t = 6)]
-        mips: usize,
-        /// GGX samples per texel.
-        #[arg(long, default_value_t = 256)]
-        samples: usize,
+        #[command(flatten)]
+        cube: cmd::CubeArgs,
         /// One file per cube face, or one strip of six faces per cube.
         #[arg(long, value_enum, default_value_t = Layout::Faces)]
         layout: Layout,
@@ -1222,9 +1215,12 @@ fn real_main(cli: Cli) -> Result<()> {
         Cmd::Prefilter {
             probe,
             out,
-            face_size,
-            mips,
-            samples,
+            cube:
+                cmd::CubeArgs {
+                    face_size,
+                    mips,
+                    samples,
+                },
             layout,
         } => {
             use lumiprobe::ibl::export::{prefilter_to_dir, FaceLayout, PrefilterOptions};

@@ -179,6 +179,27 @@ fn bracket_capture(root: &Path, width: usize, seed: u64, n_frames: usize) -> std
     mf
 }
 
+/// The bracket folder of the capture's first probe (by name).
+fn first_bracket(mf: &Path) -> std::path::PathBuf {
+    std::fs::read_dir(mf.parent().unwrap().join("probes"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_dir())
+        .min()
+        .unwrap()
+}
+
+/// The photos of a bracket folder, sorted by name.
+fn photos_in(folder: &Path) -> Vec<std::path::PathBuf> {
+    let mut photos: Vec<_> = std::fs::read_dir(folder)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .collect();
+    photos.sort();
+    photos
+}
+
 /// Drafts the capture's manifest with `method`.
 fn write_draft(mf: &Path, method: &str) {
     let dir = mf.parent().unwrap();
@@ -237,25 +258,14 @@ fn a_dry_run_quiet_run_and_resumed_rerun_say_what_happened() {
 fn a_probe_of_one_exposure_is_warned_about() {
     let tmp = tempfile::tempdir().unwrap();
     let mf = bracket_capture(tmp.path(), 64, 8, 2);
-    let probes = mf.parent().unwrap().join("probes");
     // The first probe keeps one photo of its bracket.
-    let first = std::fs::read_dir(&probes)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_dir())
-        .min()
-        .unwrap();
+    let first = first_bracket(&mf);
     // (its photos, and the wide bracket beside them when there is one)
     for folder in [first.clone(), first.join("wide")] {
         if !folder.is_dir() {
             continue;
         }
-        let mut photos: Vec<_> = std::fs::read_dir(&folder)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.is_file())
-            .collect();
-        photos.sort();
+        let photos = photos_in(&folder);
         assert!(photos.len() > 1);
         for ph in &photos[1..] {
             std::fs::remove_file(ph).unwrap();
@@ -356,19 +366,7 @@ fn the_gain_is_cached_and_cache_gc_removes_only_what_the_manifest_no_longer_uses
 fn exposure_times_out_of_the_files_order_are_refused_with_the_order_shown() {
     let tmp = tempfile::tempdir().unwrap();
     let mf = bracket_capture(tmp.path(), 64, 10, 1);
-    let probes = mf.parent().unwrap().join("probes");
-    let folder = std::fs::read_dir(&probes)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_dir())
-        .min()
-        .unwrap();
-    let mut photos: Vec<_> = std::fs::read_dir(&folder)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.is_file())
-        .collect();
-    photos.sort();
+    let photos = photos_in(&first_bracket(&mf));
     assert!(photos.len() >= 3);
     // Times that follow each photo's brightness are right; reversed, wrong.
     let mean = |p: &std::path::Path| {

@@ -28,15 +28,8 @@ pub struct ExportArgs {
     /// What to write, comma-separated.
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Format::Hdr, Format::Exr, Format::Ktx2, Format::Sh])]
     formats: Vec<Format>,
-    /// Face size of the specular cube's largest mip.
-    #[arg(long, default_value_t = 128)]
-    face_size: usize,
-    /// Specular mips (roughness level / (mips - 1)).
-    #[arg(long, default_value_t = 6)]
-    mips: usize,
-    /// GGX samples per texel.
-    #[arg(long, default_value_t = 256)]
-    samples: usize,
+    #[command(flatten)]
+    cube: super::CubeArgs,
     /// KTX2 texel format (default: half floats unless a texel exceeds 65504,
     /// then 32-bit floats).
     #[arg(long, value_enum)]
@@ -123,13 +116,13 @@ pub fn run(a: ExportArgs, quiet: bool) -> Result<()> {
         }),
         ..ExportOptions::default()
     };
-    opts.specular.face_size = a.face_size;
-    opts.specular.mip_count = a.mips;
-    opts.specular.samples = a.samples;
-    if a.samples == 0 || a.samples > 1 << 16 {
+    opts.specular.face_size = a.cube.face_size;
+    opts.specular.mip_count = a.cube.mips;
+    opts.specular.samples = a.cube.samples;
+    if a.cube.samples == 0 || a.cube.samples > 1 << 16 {
         return Err(Error::Invalid(format!(
             "--samples {} must be 1 to 65536",
-            a.samples
+            a.cube.samples
         )));
     }
     let rep = export(&scene, &a.probes, &a.out, &opts)?;

@@ -4,3 +4,18 @@
 
 pub mod cache;
 pub mod export;
+
+/// The specular cube's size, mips and samples, as `prefilter` and `export` take
+/// them.
+#[derive(clap::Args, Clone, Copy)]
+pub struct CubeArgs {
+    /// Specular face size of mip 0.
+    #[arg(long, default_value_t = 128)]
+    pub face_size: usize,
+    /// Specular mips (roughness i / (mips - 1)).
+    #[arg(long, default_value_t = 6)]
+    pub mips: usize,
+    /// GGX samples per texel.
+    #[arg(long, default_value_t = 256)]
+    pub samples: usize,
+}
