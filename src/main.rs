@@ -29,6 +29,7 @@ struct Cli {
 }
 
 #[derive(Args, Clone)]
+#[command(next_help_heading = TUNING_WARP)]
 struct WarpOpts {
     /// Yaw rotations of the probe (step 90°/N).
     #[arg(long, default_value_t = 4)]
@@ -111,6 +112,7 @@ impl WarpOpts {
 }
 
 #[derive(Args, Clone)]
+#[command(next_help_heading = TUNING_FLOW)]
 struct FlowOpts {
     /// DIS optical-flow preset.
     #[arg(long, value_enum, default_value_t = lumiprobe::flow::dense::FlowPreset::Fast)]
@@ -709,8 +711,40 @@ fn report_method(dir: &Path) -> Option<String> {
     v["params"]["method"].as_str().map(|s| s.to_string())
 }
 
+/// Help headings of the methods' tuning options: listed by `--help-all` only,
+/// so that everyday `--help` fits one screen.
+const TUNING_WARP: &str = "Warp method tuning";
+const TUNING_FLOW: &str = "Flow method tuning";
+
+/// The command line with the tuning options hidden from `--help` (they still
+/// parse), and a line saying where they are.
+fn compact_help(cmd: clap::Command) -> clap::Command {
+    let tuning = |a: &clap::Arg| matches!(a.get_help_heading(), Some(h) if h == TUNING_WARP || h == TUNING_FLOW);
+    cmd.mut_subcommands(|sub| {
+        let hidden = sub.get_arguments().any(tuning);
+        let sub = sub.mut_args(|a| if tuning(&a) { a.hide(true) } else { a });
+        if hidden {
+            sub.after_help("The warp and flow methods' tuning options: --help-all.")
+        } else {
+            sub
+        }
+    })
+}
+
 fn main() {
-    let cli = Cli::parse();
+    use clap::{CommandFactory, FromArgMatches};
+    // `--help-all` is `--help` with every option shown.
+    let mut args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let all = args.iter().any(|a| a == "--help-all");
+    for a in args.iter_mut().filter(|a| *a == "--help-all") {
+        *a = "--help".into();
+    }
+    let cmd = if all {
+        Cli::command()
+    } else {
+        compact_help(Cli::command())
+    };
+    let cli = Cli::from_arg_matches(&cmd.get_matches_from(args)).unwrap_or_else(|e| e.exit());
     if let Some(n) = cli.threads {
         let _ = rayon::ThreadPoolBuilder::new()
             .num_threads(n.max(1))

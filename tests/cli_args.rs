@@ -140,3 +140,40 @@ fn frames_that_are_not_2_to_1_or_not_the_probes_size_are_warned_about() {
     // Once each, not once per frame.
     assert_eq!(err.matches("not a 2:1").count(), 1, "{err}");
 }
+
+#[test]
+fn run_help_fits_a_screen_and_help_all_shows_the_tuning_options() {
+    let help = |flag: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args(["run", flag])
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let short = help("--help");
+    assert!(
+        short.lines().count() <= 60,
+        "{} lines:\n{short}",
+        short.lines().count()
+    );
+    assert!(
+        short.contains("--help-all") && !short.contains("--yaw-steps"),
+        "{short}"
+    );
+    let all = help("--help-all");
+    for flag in [
+        "--yaw-steps",
+        "--flow-preset",
+        "Warp method tuning",
+        "Flow method tuning",
+    ] {
+        assert!(all.contains(flag), "--help-all lacks {flag}");
+    }
+    // Hidden from --help, still taken: the bad value is refused by the option's
+    // own check, not as an unknown argument.
+    refused(
+        &["run", "no-such-scene", "--out", "x", "--yaw-steps", "x"],
+        &["--yaw-steps"],
+    );
+}
