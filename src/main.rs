@@ -711,6 +711,16 @@ fn report_method(dir: &Path) -> Option<String> {
     v["params"]["method"].as_str().map(|s| s.to_string())
 }
 
+/// Reads an HDR input as every command does: NaN, infinite and negative samples
+/// repaired, with one warning that counts them.
+fn read_input(path: &Path) -> Result<HdrImage> {
+    let (img, warning) = io::read_hdr_repaired(path)?;
+    if let Some(w) = warning {
+        eprintln!("{w}");
+    }
+    Ok(img)
+}
+
 /// Help headings of the methods' tuning options: listed by `--help-all` only,
 /// so that everyday `--help` fits one screen.
 const TUNING_WARP: &str = "Warp method tuning";
@@ -1226,6 +1236,9 @@ fn real_main(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             let rep = composite(&scene, &pred, &model, &out, &opts, fps)?;
+            for w in &rep.warnings {
+                eprintln!("{w}");
+            }
             if !cli.quiet {
                 eprintln!(
                     "{} frames in {}{}{}",
@@ -1257,7 +1270,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 },
             layout,
         } => {
-            use lumiprobe::ibl::export::{prefilter_to_dir, FaceLayout, PrefilterOptions};
+            use lumiprobe::ibl::export::{prefilter_image_to_dir, FaceLayout, PrefilterOptions};
             let mut opts = PrefilterOptions::default();
             opts.specular.face_size = face_size;
             opts.specular.mip_count = mips;
@@ -1266,7 +1279,9 @@ fn real_main(cli: Cli) -> Result<()> {
                 Layout::Faces => FaceLayout::Faces,
                 Layout::Strip => FaceLayout::Strip,
             };
-            let rep = prefilter_to_dir(&probe, &out, &opts)?;
+            let start = std::time::Instant::now();
+            let env = read_input(&probe)?;
+            let rep = prefilter_image_to_dir(&env, &probe, &out, &opts, start)?;
             if !cli.quiet {
                 eprintln!(
                     "prefiltered {} in {:.2} s: {} files in {}",
@@ -1291,14 +1306,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 render, write_render, Background, Camera, Model, RenderOptions,
             };
             let m = Model::load(&model)?;
-            let mut env_img = io::read_hdr(&probe)?;
-            let repaired = env_img.repair_invalid();
-            if repaired > 0 {
-                eprintln!(
-                    "{}: repaired {repaired} NaN/inf/negative samples",
-                    probe.display()
-                );
-            }
+            let env_img = read_input(&probe)?;
             let env = lumiprobe::ibl::export::Prefiltered::from_env(
                 &env_img,
                 &lumiprobe::ibl::export::PrefilterOptions::default(),
@@ -1490,7 +1498,7 @@ fn real_main(cli: Cli) -> Result<()> {
                 other => other,
             };
             if io::Format::from_extension(&input).is_some_and(|f| f.is_hdr()) {
-                let img = io::read_hdr(&input)?;
+                let img = read_input(&input)?;
                 let (w, h) = size.unwrap_or((img.width(), img.height()));
                 let out = dual_fisheye_to_equirect(&img, &cfg, w, h).map_err(named)?;
                 io::write_hdr(&output, &out)?;
@@ -1510,8 +1518,8 @@ fn real_main(cli: Cli) -> Result<()> {
             lumiprobe::capture::run_merge(&args, cli.quiet)?;
         }
         Cmd::Compare { a, b } => {
-            let pa = io::read_hdr(&a)?;
-            let pb = io::read_hdr(&b)?;
+            let pa = read_input(&a)?;
+            let pb = read_input(&b)?;
             let m = lumiprobe::eval::compare_resized(&pa, &pb)?;
             println!(
                 "{}",
@@ -1523,15 +1531,7 @@ fn real_main(cli: Cli) -> Result<()> {
             output,
             exr_compression,
         } => {
-            let mut img = io::read_hdr(&input)?;
-            let repaired = img.repair_invalid();
-            if repaired > 0 {
-                eprintln!(
-                    "warning: {}: {repaired} NaN, infinite or negative samples repaired \
-                     (set to zero; +inf to the brightest finite sample)",
-                    input.display()
-                );
-            }
+            let img = read_input(&input)?;
             let exr = io::ExrWriteOptions {
                 compression: exr_compression,
                 ..Default::default()
@@ -1544,7 +1544,7 @@ fn real_main(cli: Cli) -> Result<()> {
             operator,
             ev,
         } => {
-            let img = io::read_hdr(&input)?;
+            let img = read_input(&input)?;
             let v = match operator {
                 Operator::Reinhard05 => lumiprobe::tonemap::Reinhard05::default().apply(&img),
                 Operator::Reinhard => lumiprobe::tonemap::reinhard_global(&img, 0.18, None, None),
@@ -1553,7 +1553,7 @@ fn real_main(cli: Cli) -> Result<()> {
             write_display(&output, img.width(), img.height(), &v)?;
         }
         Cmd::Cube { input, out, size } => {
-            let img = io::read_hdr(&input)?;
+            let img = read_input(&input)?;
             let n = size.unwrap_or(img.width() / 4).max(1);
             let stem = input
                 .file_stem()
@@ -1577,7 +1577,7 @@ fn real_main(cli: Cli) -> Result<()> {
             pitch,
             roll,
         } => {
-            let img = io::read_hdr(&input)?;
+            let img = read_input(&input)?;
             let r = lumiprobe::sphere::ypr_to_mat(yaw, pitch, roll);
             let out: HdrImage = lumiprobe::sphere::rotate(&img, r, img.width(), img.height());
             io::write_hdr(&output, &out)?;

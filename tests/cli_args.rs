@@ -177,3 +177,60 @@ fn run_help_fits_a_screen_and_help_all_shows_the_tuning_options() {
         &["--yaw-steps"],
     );
 }
+
+#[test]
+fn every_command_repairs_nan_inf_and_negative_samples_with_one_counted_warning() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (32usize, 16usize);
+    let mut samples = vec![0.5f32; w * h * 3];
+    samples[7] = f32::NAN;
+    samples[100] = f32::INFINITY;
+    samples[200] = -2.0;
+    let mut b = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    for v in &samples {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    let bad = tmp.path().join("bad.pfm");
+    std::fs::write(&bad, b).unwrap();
+    let p = |name: &str| tmp.path().join(name).to_string_lossy().into_owned();
+    let bad_s = bad.to_string_lossy().into_owned();
+    let commands: Vec<Vec<String>> = vec![
+        vec!["tonemap".into(), bad_s.clone(), p("t.png")],
+        vec!["convert".into(), bad_s.clone(), p("c.exr")],
+        vec![
+            "rotate".into(),
+            bad_s.clone(),
+            p("r.exr"),
+            "--yaw".into(),
+            "10".into(),
+        ],
+        vec!["cube".into(), bad_s.clone(), "--out".into(), p("cube")],
+        vec![
+            "prefilter".into(),
+            bad_s.clone(),
+            "--out".into(),
+            p("pf"),
+            "--face-size".into(),
+            "8".into(),
+            "--mips".into(),
+            "2".into(),
+            "--samples".into(),
+            "8".into(),
+        ],
+    ];
+    for args in commands {
+        let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {err}");
+        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        assert_eq!(warnings.len(), 1, "{args:?}: {err}");
+        assert!(
+            warnings[0].contains("bad.pfm")
+                && warnings[0].contains("3 NaN, infinite or negative samples repaired"),
+            "{args:?}: {err}"
+        );
+    }
+}

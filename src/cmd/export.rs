@@ -126,6 +126,9 @@ pub fn run(a: ExportArgs, quiet: bool) -> Result<()> {
         )));
     }
     let rep = export(&scene, &a.probes, &a.out, &opts)?;
+    for w in &rep.warnings {
+        eprintln!("{w}");
+    }
     if !quiet {
         let files: usize = rep.frames.iter().map(|f| f.files.len()).sum();
         eprintln!(

@@ -540,6 +540,19 @@ pub fn prefilter_to_dir(
     let start = std::time::Instant::now();
     opts.validate()?;
     let env = crate::image::io::read_hdr(probe)?;
+    prefilter_image_to_dir(&env, probe, out_dir, opts, start)
+}
+
+/// [`prefilter_to_dir`] for a probe already read from `probe` (named in the
+/// report and in errors), timed from `start`.
+pub fn prefilter_image_to_dir(
+    env: &HdrImage,
+    probe: &Path,
+    out_dir: &Path,
+    opts: &PrefilterOptions,
+    start: std::time::Instant,
+) -> Result<PrefilterReport> {
+    opts.validate()?;
     if let Some(why) = too_small(&env) {
         return Err(Error::format(probe, format!("probe {why}")));
     }
@@ -554,7 +567,7 @@ pub fn prefilter_to_dir(
         ));
     }
     let t = std::time::Instant::now();
-    let (pre, raw_sh) = build(&env, opts);
+    let (pre, raw_sh) = build(env, opts);
     let prefilter_seconds = t.elapsed().as_secs_f64();
 
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;

@@ -69,6 +69,8 @@ pub struct CompositeReport {
     pub video: Option<PathBuf>,
     /// Frames skipped because the model was behind the camera or too close.
     pub skipped: Vec<String>,
+    /// Probes whose NaN, infinite or negative samples were repaired.
+    pub warnings: Vec<String>,
 }
 
 /// glTF's y-up, +z-front axes to the world's z-up axes: `(x, y, z) -> (x, -z, y)`.
@@ -208,6 +210,7 @@ pub fn composite(
         frames: Vec::new(),
         video: None,
         skipped: Vec::new(),
+        warnings: Vec::new(),
     };
     for frame in &scene.frames {
         let png = out_dir.join(format!("{}.png", frame.id));
@@ -223,7 +226,8 @@ pub fn composite(
                 frame.id
             )));
         }
-        let probe = io::read_hdr(&probe_path)?;
+        let (probe, warning) = io::read_hdr_repaired(&probe_path)?;
+        report.warnings.extend(warning);
         let sdr = load_frame(frame, None)?;
         let lin = linearize(&sdr, scene);
         match composite_frame(

@@ -25,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::ibl::ktx2::{encode_cube, gl_cube, peak, KtxFormat, HALF_MAX};
 use crate::ibl::prefilter::{cube_texel_solid_angle, mip_roughness, prefilter_specular};
 use crate::ibl::{Sh9, SpecularOptions};
-use crate::image::io::{read_hdr, ExrWriteOptions};
+use crate::image::io::{read_hdr_repaired, ExrWriteOptions};
 use crate::image::{luminance, HdrImage};
 use crate::scene::{Pose, Scene};
 use crate::sphere::{rotate, row_solid_angles};
@@ -121,6 +121,9 @@ pub struct ExportReport {
     pub frames: Vec<FrameExport>,
     /// Frames with no prediction in the run's folder (only when exporting all).
     pub missing: Vec<String>,
+    /// Predictions whose NaN, infinite or negative samples were repaired.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// Name of the report written last into the output folder.
@@ -266,18 +269,13 @@ pub fn export(
             .collect(),
         frames: Vec::new(),
         missing,
+        warnings: Vec::new(),
     };
     let to_image = image_from_target(opts.orientation);
     for (i, path) in frames {
         let frame = &scene.frames[i];
-        let pred = read_hdr(&path)?;
-        let bad = pred.count_invalid();
-        if bad > 0 {
-            return Err(Error::Invalid(format!(
-                "{}: {bad} negative, NaN or infinite values (repair with `lumiprobe convert`)",
-                path.display()
-            )));
-        }
+        let (pred, warning) = read_hdr_repaired(&path)?;
+        report.warnings.extend(warning);
         let (w, h) = (pred.width(), pred.height());
         let img = rotate(
             &pred,

@@ -110,6 +110,25 @@ pub fn read_hdr(path: &Path) -> Result<HdrImage> {
     read_hdr_with(path, &Limits::default())
 }
 
+/// Reads an HDR image as every command does: NaN, infinite and negative samples
+/// are repaired ([`HdrImage::repair_invalid`]) and the warning to print is
+/// returned with the image (`None` when nothing was repaired). Library functions
+/// that take an image instead refuse such samples; the caller decides.
+pub fn read_hdr_repaired(path: &Path) -> Result<(HdrImage, Option<String>)> {
+    let mut img = read_hdr(path)?;
+    let n = img.repair_invalid();
+    Ok((img, (n > 0).then(|| repaired_warning(path, n))))
+}
+
+/// The one wording of the repair warning.
+pub fn repaired_warning(path: &Path, n: usize) -> String {
+    format!(
+        "warning: {}: {n} NaN, infinite or negative samples repaired (set to zero; +inf to \
+         the brightest finite sample)",
+        path.display()
+    )
+}
+
 /// Reads an HDR image, rejecting files that declare more than `limits` allow.
 pub fn read_hdr_with(path: &Path, limits: &Limits) -> Result<HdrImage> {
     let bytes = crate::fsutil::read(path)?;
