@@ -1159,6 +1159,12 @@ fn real_main(cli: Cli) -> Result<()> {
             let ev = if rescale {
                 lumiprobe::pipeline::evaluate::evaluate_rescaled(&scene, &refs)?
             } else {
+                use lumiprobe::pipeline::evaluate::{scale_factors, scale_warning};
+                for ((label, dir), (_, f)) in refs.iter().zip(scale_factors(&scene, &refs)?) {
+                    if let Some(w) = scale_warning(label, dir, f) {
+                        eprintln!("{w}");
+                    }
+                }
                 lumiprobe::pipeline::evaluate::evaluate(&scene, &refs)?
             };
             if !json {

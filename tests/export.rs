@@ -1,7 +1,8 @@
 //! `lumiprobe export` end to end on a synthetic scene, its files read by real
 //! clients: the KTX2 cubes by npm `ktx-parse` (what three.js's KTX2Loader is
 //! built on; installed into tools/js by scripts/setup.sh and scripts/test.sh),
-//! the equirect files by lumiprobe's own readers.
+//! the equirect files by lumiprobe's own readers; and `eval`'s warning for
+//! probes at another scale than the truth.
 
 use lumiprobe::ibl::ktx2::gl_face_dir;
 use lumiprobe::image::io::read_hdr;
@@ -215,4 +216,45 @@ fn export_says_what_is_missing_in_the_users_words() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("1 frames have no prediction"));
     assert!(out.join("frame_000.hdr").is_file() && !out.join("frame_002.hdr").exists());
     assert!(!err.contains("panicked"));
+}
+
+#[test]
+fn eval_warns_when_the_probes_scale_is_far_from_the_truths() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, pred) = scene_with_predictions(tmp.path());
+    // Probes 98x brighter than the scene, as merged brackets of an uncalibrated
+    // camera come out.
+    for e in std::fs::read_dir(&pred).unwrap() {
+        let p = e.unwrap().path();
+        let mut img = read_hdr(&p).unwrap();
+        img.data_mut().iter_mut().for_each(|v| *v *= 98.0);
+        lumiprobe::image::io::write_hdr(&p, &img).unwrap();
+    }
+    let eval = |extra: &[&str]| {
+        let mut a = vec![
+            "eval",
+            scene.to_str().unwrap(),
+            "--pred",
+            pred.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        let o = lumiprobe(&a);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let err = eval(&[]);
+    assert!(
+        err.contains("98.000x brighter than the ground truth"),
+        "{err}"
+    );
+    assert!(err.contains("--rescale"), "{err}");
+    // Rescaled, or at the truth's scale: no warning.
+    assert!(!eval(&["--rescale"]).contains("brighter"));
+    for e in std::fs::read_dir(&pred).unwrap() {
+        let p = e.unwrap().path();
+        let mut img = read_hdr(&p).unwrap();
+        img.data_mut().iter_mut().for_each(|v| *v /= 98.0);
+        lumiprobe::image::io::write_hdr(&p, &img).unwrap();
+    }
+    assert!(!eval(&[]).contains("warning"));
 }

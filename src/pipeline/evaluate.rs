@@ -54,12 +54,10 @@ fn mean_luminance(img: &HdrImage) -> f64 {
         / n
 }
 
-/// Like [`evaluate`], with every prediction first multiplied by one global factor
-/// per folder: the median over frames of the truth's mean luminance over the
-/// prediction's. For predictions whose absolute scale is unknowable (probes merged
-/// from brackets without a calibrated camera are relative radiance); the factors
-/// are reported in [`SceneEval::scales`]. Baselines are not rescaled.
-pub fn evaluate_rescaled(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
+/// For each `(label, prediction folder)`, the median over frames with ground
+/// truth of the truth's mean luminance over the prediction's (1 when no frame
+/// has both).
+pub fn scale_factors(scene: &Scene, preds: &[(String, &Path)]) -> Result<Vec<(String, f64)>> {
     let mut factors = Vec::new();
     for (label, dir) in preds {
         let mut logs = Vec::new();
@@ -87,6 +85,43 @@ pub fn evaluate_rescaled(scene: &Scene, preds: &[(String, &Path)]) -> Result<Sce
         };
         factors.push((label.clone(), f));
     }
+    Ok(factors)
+}
+
+/// Largest ratio between a prediction's global scale and the truth's that
+/// `eval` accepts without a warning.
+pub const SCALE_WARN_RATIO: f64 = 2.0;
+
+/// The warning `eval` prints for a prediction whose global scale is off the
+/// truth's by more than [`SCALE_WARN_RATIO`] (`factor`: truth over prediction,
+/// from [`scale_factors`]).
+pub fn scale_warning(label: &str, dir: &Path, factor: f64) -> Option<String> {
+    if !(factor.is_finite() && factor > 0.0)
+        || (1.0 / SCALE_WARN_RATIO..=SCALE_WARN_RATIO).contains(&factor)
+    {
+        return None;
+    }
+    let (times, how) = if factor < 1.0 {
+        (1.0 / factor, "brighter")
+    } else {
+        (factor, "dimmer")
+    };
+    Some(format!(
+        "warning: {label} ({}): its probes are {times:.3}x {how} than the ground truth (median \
+         over frames), so every radiometric score measures the scale: pass --rescale to score \
+         them at the truth's scale, or give the probes an absolute unit (probes merged from \
+         brackets are relative unless the camera's gain is known)",
+        dir.display()
+    ))
+}
+
+/// Like [`evaluate`], with every prediction first multiplied by one global factor
+/// per folder: the median over frames of the truth's mean luminance over the
+/// prediction's. For predictions whose absolute scale is unknowable (probes merged
+/// from brackets without a calibrated camera are relative radiance); the factors
+/// are reported in [`SceneEval::scales`]. Baselines are not rescaled.
+pub fn evaluate_rescaled(scene: &Scene, preds: &[(String, &Path)]) -> Result<SceneEval> {
+    let factors = scale_factors(scene, preds)?;
     let mut ev = evaluate_scaled(
         scene,
         preds,
