@@ -16,5 +16,5 @@ if ! command -v npm >/dev/null 2>&1; then
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
   $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends nodejs npm
 fi
-[ -d tools/js/node_modules/ktx-parse ] || npm ci --prefix tools/js --no-audit --no-fund
+{ [ -d tools/js/node_modules/ktx-parse ] && [ -d tools/js/node_modules/three ]; } || npm ci --prefix tools/js --no-audit --no-fund
 cargo build --release --locked 2>/dev/null || cargo build --release

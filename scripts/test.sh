@@ -10,6 +10,6 @@ PY=python3
 [ -x /usr/bin/python3 ] && PY=/usr/bin/python3
 "$PY" scripts/corpus/build.py --out target/ci-corpus --seeds 1 --size 128x64 --samples 8
 # The KTX2 client tests/export.rs reads lumiprobe's cubes with.
-[ -d tools/js/node_modules/ktx-parse ] || npm ci --prefix tools/js --no-audit --no-fund
+{ [ -d tools/js/node_modules/ktx-parse ] && [ -d tools/js/node_modules/three ]; } || npm ci --prefix tools/js --no-audit --no-fund
 export LUMIPROBE_SMOKE_SCENE="$PWD/target/ci-corpus/s0001_128x64"
 cargo test

@@ -169,12 +169,68 @@ fn export_writes_cubes_a_real_client_reads_with_the_light_where_the_world_has_it
         "cube {dir} vs world {y_up}"
     );
 
-    // three.js's LightProbe JSON: 27 numbers whose irradiance peaks towards the
-    // light's side.
+    // three.js's LightProbe JSON: 27 numbers, and the irradiance three.js
+    // itself computes from them is the cosine-weighted integral of the
+    // exported equirect (order-2 SH: within 10% of the larger value here)
+    // along each axis.
     let sh: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("frame_001_sh.json")).unwrap()).unwrap();
     assert_eq!(sh["type"], "LightProbe");
     assert_eq!(sh["sh"].as_array().unwrap().len(), 27);
+    let axes = [
+        glam::Vec3::X,
+        -glam::Vec3::X,
+        glam::Vec3::Y,
+        -glam::Vec3::Y,
+        glam::Vec3::Z,
+        -glam::Vec3::Z,
+    ];
+    let three = three_irradiance(&out.join("frame_001_sh.json"), &axes);
+    let (w, h) = (hdr.width(), hdr.height());
+    let sa = lumiprobe::sphere::row_solid_angles(w, h);
+    let peak = axes
+        .iter()
+        .map(|n| {
+            let mut e = 0.0f64;
+            for y in 0..h {
+                for x in 0..w {
+                    let c = pixel_to_dir(x, y, w, h).dot(*n).max(0.0);
+                    e += luminance(hdr.get(x, y)) as f64 * c as f64 * sa[y] as f64;
+                }
+            }
+            e
+        })
+        .collect::<Vec<f64>>();
+    let top = peak.iter().cloned().fold(0.0, f64::max);
+    for ((n, e3), e) in axes.iter().zip(&three).zip(&peak) {
+        let l3 = luminance([e3[0] as f32, e3[1] as f32, e3[2] as f32]) as f64;
+        assert!(
+            (l3 - e).abs() < 0.1 * top,
+            "along {n}: three.js {l3}, integral {e}"
+        );
+    }
+}
+
+/// Irradiance three.js's `LightProbe` computes from an exported SH file along
+/// each direction (`tools/js/sh_check.mjs`).
+fn three_irradiance(file: &Path, dirs: &[glam::Vec3]) -> Vec<[f64; 3]> {
+    let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/js");
+    assert!(
+        js.join("node_modules/three").is_dir(),
+        "three.js is not installed: run `npm ci --prefix tools/js` (scripts/test.sh does)"
+    );
+    let out = Command::new("node")
+        .arg(js.join("sh_check.mjs"))
+        .arg(file)
+        .args(dirs.iter().map(|d| format!("{},{},{}", d.x, d.y, d.z)))
+        .output()
+        .expect("node is needed to run three.js (Debian: apt install nodejs npm)");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[test]
