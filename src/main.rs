@@ -699,11 +699,6 @@ fn progress_printer(quiet: bool, label: &'static str) -> impl Fn(usize, usize) +
     }
 }
 
-fn write_display(path: &Path, w: usize, h: usize, v: &[f32]) -> Result<()> {
-    let img = lumiprobe::SdrImage::from_vec(w, h, lumiprobe::tonemap::quantize(v))?;
-    io::write_sdr(path, &img)
-}
-
 /// The method named in a run folder's report.json, for labelling eval rows.
 fn report_method(dir: &Path) -> Option<String> {
     let text = std::fs::read_to_string(dir.join("report.json")).ok()?;
@@ -1551,12 +1546,21 @@ fn real_main(cli: Cli) -> Result<()> {
             ev,
         } => {
             let img = read_input(&input)?;
-            let v = match operator {
-                Operator::Reinhard05 => lumiprobe::tonemap::Reinhard05::default().apply(&img),
-                Operator::Reinhard => lumiprobe::tonemap::reinhard_global(&img, 0.18, None, None),
-                Operator::Exposure => lumiprobe::tonemap::exposure_srgb(&img, ev),
+            let (w, h) = (img.width(), img.height());
+            let codes = match operator {
+                // Straight to 8 bits: no float copy of a large panorama.
+                Operator::Reinhard05 => {
+                    lumiprobe::tonemap::Reinhard05::default().apply_quantized(&img)
+                }
+                Operator::Reinhard => lumiprobe::tonemap::quantize(
+                    &lumiprobe::tonemap::reinhard_global(&img, 0.18, None, None),
+                ),
+                Operator::Exposure => {
+                    lumiprobe::tonemap::quantize(&lumiprobe::tonemap::exposure_srgb(&img, ev))
+                }
             };
-            write_display(&output, img.width(), img.height(), &v)?;
+            drop(img);
+            io::write_sdr(&output, &lumiprobe::SdrImage::from_vec(w, h, codes)?)?;
         }
         Cmd::Cube { input, out, size } => {
             let img = read_input(&input)?;

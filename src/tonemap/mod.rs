@@ -50,17 +50,53 @@ fn sane(v: f32) -> f32 {
     }
 }
 
+/// What [`Reinhard05`] maps every pixel with: the image's statistics and the
+/// operator's settings.
+struct Reinhard05Map {
+    m: f64,
+    f: f64,
+    a: f64,
+    c: f64,
+    lum_mean: f64,
+    chan_mean: [f64; 3],
+}
+
+impl Reinhard05Map {
+    /// The operator's value of each channel of pixel `p`, before normalisation.
+    #[inline]
+    fn values(&self, p: [f32; 3]) -> [f64; 3] {
+        let p = [sane(p[0]), sane(p[1]), sane(p[2])];
+        let l = luminance(p) as f64;
+        let (a, c) = (self.a, self.c);
+        std::array::from_fn(|k| {
+            let ch = p[k] as f64;
+            let local = c * ch + (1.0 - c) * l;
+            let global = c * self.chan_mean[k] + (1.0 - c) * self.lum_mean;
+            let adapt = a * local + (1.0 - a) * global;
+            let sigma = (self.f * adapt).max(0.0).powf(self.m);
+            let v = if ch + sigma > 0.0 {
+                ch / (ch + sigma)
+            } else {
+                0.0
+            };
+            if v.is_finite() {
+                v
+            } else {
+                1.0
+            }
+        })
+    }
+}
+
 impl Reinhard05 {
-    /// Tone-maps `img` to display values in `[0, 1]` (interleaved RGB, same size).
-    /// Finite for any input, including constant, all-black and single-sun images.
-    pub fn apply(&self, img: &HdrImage) -> Vec<f32> {
+    /// The per-pixel map for `img` (`None` for an empty image): log statistics
+    /// of luminance, in f64 so a 1e6 sun does not lose the rest.
+    fn map_for(&self, img: &HdrImage) -> Option<Reinhard05Map> {
         let eps = 1e-6f64;
         let n = img.width() * img.height();
-        let mut out = vec![0.0f32; n * 3];
         if n == 0 {
-            return out;
+            return None;
         }
-        // Log statistics of luminance (in f64 so a 1e6 sun does not lose the rest).
         let mut log_sum = 0.0f64;
         let mut log_min = f64::INFINITY;
         let mut log_max = f64::NEG_INFINITY;
@@ -91,39 +127,55 @@ impl Reinhard05 {
                 0.3 + 0.7 * k.powf(1.4)
             }
         };
-        let f = (-self.intensity as f64).exp();
-        let lum_mean = lum_sum / n as f64;
-        let chan_mean = chan_sum.map(|s| s / n as f64);
-        let (a, c) = (self.light_adapt as f64, self.color_adapt as f64);
+        Some(Reinhard05Map {
+            m,
+            f: (-self.intensity as f64).exp(),
+            a: self.light_adapt as f64,
+            c: self.color_adapt as f64,
+            lum_mean: lum_sum / n as f64,
+            chan_mean: chan_sum.map(|s| s / n as f64),
+        })
+    }
+
+    /// Calls `put(i, display value)` for every sample `i` of `img`, in order.
+    /// Three passes (statistics, range, output) and no per-pixel buffer: the
+    /// operator's values are computed again rather than kept, so memory stays
+    /// the image's and the caller's output.
+    fn each_display_value(&self, img: &HdrImage, mut put: impl FnMut(usize, f32)) {
+        let Some(map) = self.map_for(img) else {
+            return;
+        };
         let mut vmin = f64::INFINITY;
         let mut vmax = f64::NEG_INFINITY;
-        let mut tmp = vec![0.0f64; n * 3];
-        for (i, p) in img.pixels().enumerate() {
-            let p = [sane(p[0]), sane(p[1]), sane(p[2])];
-            let l = luminance(p) as f64;
-            for k in 0..3 {
-                let ch = p[k] as f64;
-                let local = c * ch + (1.0 - c) * l;
-                let global = c * chan_mean[k] + (1.0 - c) * lum_mean;
-                let adapt = a * local + (1.0 - a) * global;
-                let sigma = (f * adapt).max(0.0).powf(m);
-                let v = if ch + sigma > 0.0 {
-                    ch / (ch + sigma)
-                } else {
-                    0.0
-                };
-                let v = if v.is_finite() { v } else { 1.0 };
-                tmp[3 * i + k] = v;
+        for p in img.pixels() {
+            for v in map.values(p) {
                 vmin = vmin.min(v);
                 vmax = vmax.max(v);
             }
         }
         let span = vmax - vmin;
         let inv_gamma = 1.0 / self.gamma.max(1e-3) as f64;
-        for (o, t) in out.iter_mut().zip(&tmp) {
-            let v = if span > 1e-12 { (t - vmin) / span } else { 0.5 };
-            *o = v.clamp(0.0, 1.0).powf(inv_gamma) as f32;
+        for (i, p) in img.pixels().enumerate() {
+            for (k, t) in map.values(p).into_iter().enumerate() {
+                let v = if span > 1e-12 { (t - vmin) / span } else { 0.5 };
+                put(3 * i + k, v.clamp(0.0, 1.0).powf(inv_gamma) as f32);
+            }
         }
+    }
+
+    /// Tone-maps `img` to display values in `[0, 1]` (interleaved RGB, same size).
+    /// Finite for any input, including constant, all-black and single-sun images.
+    pub fn apply(&self, img: &HdrImage) -> Vec<f32> {
+        let mut out = vec![0.0f32; img.width() * img.height() * 3];
+        self.each_display_value(img, |i, v| out[i] = v);
+        out
+    }
+
+    /// [`Self::apply`] quantised to 8 bits ([`quantize`] of it, byte for byte)
+    /// without the float buffer: a quarter of the memory for a large panorama.
+    pub fn apply_quantized(&self, img: &HdrImage) -> Vec<u8> {
+        let mut out = vec![0u8; img.width() * img.height() * 3];
+        self.each_display_value(img, |i, v| out[i] = quantize_one(v));
         out
     }
 }
@@ -202,9 +254,13 @@ pub fn srgb_eotf(y: f32) -> f32 {
 
 /// Display values in [0, 1] to 8-bit codes (rounded).
 pub fn quantize(v: &[f32]) -> Vec<u8> {
-    v.iter()
-        .map(|&x| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
-        .collect()
+    v.iter().map(|&x| quantize_one(x)).collect()
+}
+
+/// One display value in `[0, 1]` to its 8-bit code (rounded).
+#[inline]
+pub fn quantize_one(x: f32) -> u8 {
+    (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
 }
 
 /// 8-bit gray (luma of display values) for feature detection.
@@ -252,6 +308,35 @@ mod tests {
         // The sun does not wash the rest of the image to black.
         let t = Reinhard05::default().apply(&sun);
         assert!(t[3 * 20] > 0.05, "{}", t[3 * 20]);
+    }
+
+    #[test]
+    fn reinhard05_straight_to_8_bits_is_its_float_output_quantised() {
+        let sun = HdrImage::from_fn(32, 16, |x, y| {
+            if x == 3 && y == 2 {
+                [1e6, 1e6, 9e5]
+            } else {
+                [0.01 * x as f32, 0.3 + 0.01 * y as f32, 0.2]
+            }
+        });
+        let mut bad = sun.clone();
+        bad.data_mut()[5] = f32::NAN;
+        bad.data_mut()[9] = -1.0;
+        let ops = [
+            Reinhard05::default(),
+            Reinhard05 {
+                intensity: 1.0,
+                contrast: Some(0.6),
+                light_adapt: 0.5,
+                color_adapt: 0.3,
+                gamma: 1.8,
+            },
+        ];
+        for img in [&sun, &bad, &HdrImage::new(4, 2)] {
+            for op in &ops {
+                assert_eq!(op.apply_quantized(img), quantize(&op.apply(img)));
+            }
+        }
     }
 
     #[test]
