@@ -45,26 +45,31 @@ fn lumiprobe(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
-/// What `tools/js/ktx2_check.mjs` reports of a KTX2 file. Fails, with what to
-/// do, when node or the client is missing: this test does not pass without it.
-fn ktx_parse(file: &Path) -> serde_json::Value {
+/// The JSON a client script of `tools/js` prints for `args`, run with node.
+/// Fails, with what to do, when node or the client's npm package is missing:
+/// the tests do not pass without them.
+fn client(script: &str, package: &str, args: &[String]) -> serde_json::Value {
     let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/js");
     assert!(
-        js.join("node_modules/ktx-parse").is_dir(),
-        "the KTX2 client is not installed: run `npm ci --prefix tools/js` (scripts/test.sh does)"
+        js.join("node_modules").join(package).is_dir(),
+        "npm {package} is not installed: run `npm ci --prefix tools/js` (scripts/test.sh does)"
     );
     let out = Command::new("node")
-        .arg(js.join("ktx2_check.mjs"))
-        .arg(file)
+        .arg(js.join(script))
+        .args(args)
         .output()
-        .expect("node is needed to run the KTX2 client (Debian: apt install nodejs npm)");
+        .expect("node is needed to run the clients (Debian: apt install nodejs npm)");
     assert!(
         out.status.success(),
-        "ktx-parse could not read {}: {}",
-        file.display(),
+        "{script} {args:?}: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// What npm `ktx-parse` reads of a KTX2 file (`tools/js/ktx2_check.mjs`).
+fn ktx_parse(file: &Path) -> serde_json::Value {
+    client("ktx2_check.mjs", "ktx-parse", &[file.display().to_string()])
 }
 
 /// Direction of the brightest pixel of an equirect.
@@ -214,103 +219,7 @@ fn export_writes_cubes_a_real_client_reads_with_the_light_where_the_world_has_it
 /// Irradiance three.js's `LightProbe` computes from an exported SH file along
 /// each direction (`tools/js/sh_check.mjs`).
 fn three_irradiance(file: &Path, dirs: &[glam::Vec3]) -> Vec<[f64; 3]> {
-    let js = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/js");
-    assert!(
-        js.join("node_modules/three").is_dir(),
-        "three.js is not installed: run `npm ci --prefix tools/js` (scripts/test.sh does)"
-    );
-    let out = Command::new("node")
-        .arg(js.join("sh_check.mjs"))
-        .arg(file)
-        .args(dirs.iter().map(|d| format!("{},{},{}", d.x, d.y, d.z)))
-        .output()
-        .expect("node is needed to run three.js (Debian: apt install nodejs npm)");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-#[test]
-fn export_says_what_is_missing_in_the_users_words() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (scene, pred) = scene_with_predictions(tmp.path());
-    let out = tmp.path().join("export");
-    let run = |extra: &[&str]| {
-        let mut a = vec![
-            "export",
-            scene.to_str().unwrap(),
-            "--probes",
-            pred.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--formats",
-            "hdr",
-        ];
-        a.extend_from_slice(extra);
-        lumiprobe(&a)
-    };
-    let o = run(&["--frames", "9"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success());
-    assert!(
-        err.contains("frame 9 is not in the scene, which has 3 frames"),
-        "{err}"
-    );
-    std::fs::remove_file(pred.join("frame_002.exr")).unwrap();
-    let o = run(&["--frames", "2"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        err.contains("frame_002.exr") && err.contains("lumiprobe run"),
-        "{err}"
-    );
-    // Exporting all frames skips the one not yet predicted, and says so.
-    let o = run(&[]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("1 frames have no prediction"));
-    assert!(out.join("frame_000.hdr").is_file() && !out.join("frame_002.hdr").exists());
-    assert!(!err.contains("panicked"));
-}
-
-#[test]
-fn eval_warns_when_the_probes_scale_is_far_from_the_truths() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (scene, pred) = scene_with_predictions(tmp.path());
-    // Probes 98x brighter than the scene, as merged brackets of an uncalibrated
-    // camera come out.
-    for e in std::fs::read_dir(&pred).unwrap() {
-        let p = e.unwrap().path();
-        let mut img = read_hdr(&p).unwrap();
-        img.data_mut().iter_mut().for_each(|v| *v *= 98.0);
-        lumiprobe::image::io::write_hdr(&p, &img).unwrap();
-    }
-    let eval = |extra: &[&str]| {
-        let mut a = vec![
-            "eval",
-            scene.to_str().unwrap(),
-            "--pred",
-            pred.to_str().unwrap(),
-        ];
-        a.extend_from_slice(extra);
-        let o = lumiprobe(&a);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        String::from_utf8_lossy(&o.stderr).into_owned()
-    };
-    let err = eval(&[]);
-    assert!(
-        err.contains("98.000x brighter than the ground truth"),
-        "{err}"
-    );
-    assert!(err.contains("--rescale"), "{err}");
-    // Rescaled, or at the truth's scale: no warning.
-    assert!(!eval(&["--rescale"]).contains("brighter"));
-    for e in std::fs::read_dir(&pred).unwrap() {
-        let p = e.unwrap().path();
-        let mut img = read_hdr(&p).unwrap();
-        img.data_mut().iter_mut().for_each(|v| *v /= 98.0);
-        lumiprobe::image::io::write_hdr(&p, &img).unwrap();
-    }
-    assert!(!eval(&[]).contains("warning"));
+    let mut args = vec![file.display().to_string()];
+    args.extend(dirs.iter().map(|d| format!("{},{},{}", d.x, d.y, d.z)));
+    serde_json::from_value(client("sh_check.mjs", "three", &args)).unwrap()
 }
