@@ -489,6 +489,7 @@ fn book(px: &Pixels, regions: &mut [Region], look: &Lookups, white: f32) {
             match look.sky.get(&i) {
                 Some(&s) => {
                     r.booked.far[k] += excess(s) * a;
+                    r.booked.far_covered[k] += excess(s) * a;
                     if k == 0 {
                         covered[o] += a;
                     }

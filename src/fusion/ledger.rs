@@ -206,6 +206,12 @@ pub struct LedgerEntry {
     /// along the walk.
     #[serde(default)]
     pub dir: [f32; 3],
+    /// What the probes' radiance gives the region pixel by pixel (carried
+    /// through a light's surface, or a far source where the lookup covers the
+    /// pixels), with nothing extrapolated: the part of the budget the walk
+    /// never holds the region below.
+    #[serde(default)]
+    pub measured: f64,
     /// The power the walk held the region to ([`super::walk`]), and what it held
     /// before (`added` is after).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -230,6 +236,9 @@ pub(super) struct Booked {
     /// Power a far source looked up in the region's directions gives its fully
     /// and partially clipped pixels.
     pub far: [f64; 2],
+    /// The part of `far` the lookup covers pixel by pixel (no pixel counted at
+    /// the covered ones' mean).
+    pub far_covered: [f64; 2],
 }
 
 /// Each region's budget and the source it is booked to.
@@ -297,6 +306,18 @@ pub(super) fn budgets(
         .collect()
 }
 
+/// What the probes' radiance gives region `r` pixel by pixel, nothing
+/// extrapolated.
+fn measured(r: &Region, partial: bool) -> f64 {
+    let part = |v: [f64; 2]| v[0] + if partial { v[1] } else { 0.0 };
+    let v = part(r.booked.carried).max(part(r.booked.far_covered));
+    if v.is_finite() {
+        v
+    } else {
+        0.0
+    }
+}
+
 /// The radiance ceiling per channel of region `r`'s pixels: the probes' peak,
 /// raised for a region holding a placed light to that light's power in its
 /// smallest pixel.
@@ -351,6 +372,7 @@ pub(super) fn apply(
             added: 0.0,
             ceiling_px: 0,
             most,
+            measured: measured(&regions[o], partial),
             dir: regions[o].dir.normalize_or_zero().to_array(),
             walk: None,
         })

@@ -25,7 +25,7 @@ use crate::fusion::{
     Evidence, FusionParams, FusionReport, Measured, ProbeEvidence,
 };
 use crate::image::{io, HdrImage, SdrImage};
-use crate::scene::{distance_m, Frame, Scene};
+use crate::scene::{distance_m, Frame, Pose, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -348,7 +348,41 @@ fn frame_inputs(
         parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
         parts.push(format!("{:?}", m.pose));
     }
+    for n in witness_frames(scene, frame, params) {
+        parts.push(file_stamp(&n.sdr));
+        parts.push(format!("{:?}", n.pose));
+    }
     (used, fingerprint(&parts))
+}
+
+/// The frames that witness `frame`'s far sources (`fusion.far_witness_m`): the
+/// one before it and the one after it in the walk, when within that distance.
+fn witness_frames<'s>(scene: &'s Scene, frame: &Frame, params: &RunParams) -> Vec<&'s Frame> {
+    let reach = params.fusion.far_witness_m;
+    if params.method != Method::Fusion || !(reach > 0.0) {
+        return Vec::new();
+    }
+    let Some(i) = scene.frames.iter().position(|f| f.id == frame.id) else {
+        return Vec::new();
+    };
+    [i.checked_sub(1), Some(i + 1)]
+        .into_iter()
+        .flatten()
+        .filter_map(|j| scene.frames.get(j))
+        .filter(|n| n.pose.position.distance(frame.pose.position) <= reach)
+        .collect()
+}
+
+/// The witnesses' radiance at the working size; a witness that cannot be read
+/// is left out (its own frame reports the error).
+fn load_witnesses(scene: &Scene, frame: &Frame, params: &RunParams) -> Vec<(HdrImage, Pose)> {
+    witness_frames(scene, frame, params)
+        .into_iter()
+        .filter_map(|n| {
+            let sdr = load_frame(n, params.size).ok()?;
+            Some((linearize(&sdr, scene), n.pose))
+        })
+        .collect()
 }
 
 /// The frame's record when its probe and sidecar in `out_dir` are both present
@@ -487,8 +521,10 @@ fn run_named(
             note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
             let t = Instant::now();
             let lin = linearize(&sdr, scene);
-            let (img, warp_report, flow_report, fusion_report) =
-                predict_held(scene, frame, &sdr, &lin, used, access, params, holds)?;
+            let witnesses = load_witnesses(scene, frame, params);
+            let (img, warp_report, flow_report, fusion_report) = predict_held(
+                scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
+            )?;
             let total_ms = t.elapsed().as_secs_f64() * 1e3;
             drop((sdr, lin));
             io::write_hdr_with(&out, &img, &exr)?;
@@ -713,7 +749,8 @@ pub fn predict_frame(
     access: ProbeAccess,
     params: &RunParams,
 ) -> Result<Prediction> {
-    predict_held(scene, frame, sdr, lin, used, access, params, &[])
+    let witnesses = load_witnesses(scene, frame, params);
+    predict_held(scene, frame, sdr, lin, used, access, params, &[], &witnesses)
 }
 
 /// [`predict_frame`], with the fusion's regions named in `walk` held to the
@@ -728,6 +765,7 @@ fn predict_held(
     access: ProbeAccess,
     params: &RunParams,
     walk: &[Mend],
+    witnesses: &[(HdrImage, Pose)],
 ) -> Result<Prediction> {
     let (w, h) = (sdr.width(), sdr.height());
     let (get_probe, pairs) = (access.get, access.pairs);
@@ -748,7 +786,8 @@ fn predict_held(
         base.flow.sdr_cost = params.fusion.sdr_label_cost;
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
-        let (est, wr, fr, _) = predict_frame(scene, frame, sdr, lin, &base_used, access, &base)?;
+        let (est, wr, fr, _) =
+            predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[], &[])?;
         let white = scene
             .response
             .decode(params.flow.censor.clip_code as f32 / 255.0)
@@ -782,6 +821,14 @@ fn predict_held(
             frame: frame.pose,
             floor: white,
             near,
+            witnesses: witnesses
+                .iter()
+                .map(|(radiance, pose)| crate::fusion::lights::Witness {
+                    radiance,
+                    pose: *pose,
+                    white,
+                })
+                .collect(),
         });
         // What the probes measured, for the ledger: each probe's light above
         // the white point and its peak, found once.

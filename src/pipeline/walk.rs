@@ -3,7 +3,6 @@
 //! regions the walk holds are fused again with those holds.
 
 use super::FrameRecord;
-use crate::fusion::ledger::Source;
 use crate::fusion::walk::{mends, Mend, WalkParams, WalkRegion};
 use crate::scene::Scene;
 use glam::Vec3;
@@ -21,13 +20,12 @@ fn regions(scene: &Scene, i: usize, rec: &FrameRecord) -> Vec<WalkRegion> {
             let dir = (to_world * Vec3::from_array(e.dir)).normalize_or_zero();
             let solid_angle = fu.blobs.get(e.region)?.solid_angle_sr;
             let added = e.walk.map_or(e.added, |w| w.before);
-            // Carried and far sources are the probes' measurements carried pixel
-            // by pixel to the frame; a placed light's or the probes' budget
-            // includes the base estimate's own power.
-            let supported = match e.source {
-                Source::Carried | Source::Far => e.budget.min(added),
-                Source::Placed | Source::Probes | Source::None => 0.0,
-            };
+            // What the probes' radiance gives the region pixel by pixel (a
+            // light carried through its surface, a far source where the lookup
+            // covers it); a placed light's or the probes' budget includes the
+            // base estimate's own power, and a far source's pixels the lookup
+            // does not cover are extrapolated.
+            let supported = e.measured.min(added);
             (dir != Vec3::ZERO).then_some(WalkRegion {
                 region: e.region,
                 dir,

@@ -420,6 +420,7 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
         frame,
         floor: 1.0,
         near,
+        witnesses: Vec::new(),
     };
     // With nothing placed the lamp is taken for a far source.
     assert!(sky(Vec::new()).radiance(d).is_some_and(|c| c[1] > 500.0));
@@ -436,4 +437,80 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
         radius: 1.5,
     };
     assert!(sky(vec![window]).radiance(d).is_some());
+}
+
+/// The neighbouring frames witness the far sources: a lamp one probe sees past
+/// a corner, taken for a far source, is refused where every neighbour measured
+/// its direction unclipped, and kept while one neighbour saw it clipped; a sun
+/// every view sees stays.
+#[test]
+fn neighbours_that_measured_a_direction_unclipped_refuse_a_far_source_there() {
+    let lamp = Vec3::new(4.0, 3.0, 2.5);
+    let (w, h) = (256, 128);
+    let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+    let sun = Vec3::new(-1.0, 0.3, 0.4).normalize();
+    let lit = |pose: &Pose, x: usize, y: usize, lamp_seen: bool| -> [f32; 3] {
+        let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+        if d.dot(sun) > 0.999 {
+            [5e4; 3]
+        } else if lamp_seen && {
+            let v = lamp - pose.position;
+            let t = v.dot(d);
+            t > 0.0 && (v - t * d).length() <= 0.1
+        } {
+            [1000.0; 3]
+        } else {
+            [0.5; 3]
+        }
+    };
+    let img = HdrImage::from_fn(w, h, |x, y| lit(&probe, x, y, true));
+    let frame = upright(Vec3::new(0.2, -0.1, 1.5));
+    // Two neighbours 15 cm either side: one sees the lamp's direction as a
+    // dim wall, the other (with `clipped`) as clipped.
+    let neighbour = |dx: f32, clipped: bool| {
+        let pose = upright(Vec3::new(0.2 + dx, -0.1, 1.5));
+        let dl = (lamp - probe.position).normalize();
+        let img = HdrImage::from_fn(w, h, |x, y| {
+            let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+            if clipped && d.dot(dl) > 0.995 {
+                [1.0; 3]
+            } else {
+                lit(&pose, x, y, false).map(|c| c.min(1.0))
+            }
+        });
+        (img, pose)
+    };
+    let sky = |witnesses: &[(HdrImage, Pose)]| -> (Option<[f32; 3]>, Option<[f32; 3]>) {
+        let view = SkyView {
+            probes: vec![(&img, &probe)],
+            frame,
+            floor: 1.0,
+            near: Vec::new(),
+            witnesses: witnesses
+                .iter()
+                .map(|(radiance, pose)| Witness {
+                    radiance,
+                    pose: *pose,
+                    white: 1.0,
+                })
+                .collect(),
+        };
+        let to_cam = frame.world_from_camera.transpose();
+        (
+            view.radiance(to_cam * (lamp - probe.position).normalize()),
+            view.radiance(to_cam * sun),
+        )
+    };
+    // No witnesses: the lamp is taken for a far source, as before.
+    let (l, s) = sky(&[]);
+    assert!(l.is_some_and(|c| c[1] > 500.0), "{l:?}");
+    assert!(s.is_some_and(|c| c[1] > 1e4), "{s:?}");
+    // Both neighbours measured the lamp's direction unclipped: refused; the sun
+    // every neighbour saw clipped stays.
+    let (l, s) = sky(&[neighbour(-0.15, false), neighbour(0.15, false)]);
+    assert_eq!(l, None);
+    assert!(s.is_some_and(|c| c[1] > 1e4), "{s:?}");
+    // One neighbour saw it clipped: kept.
+    let (l, _) = sky(&[neighbour(-0.15, false), neighbour(0.15, true)]);
+    assert!(l.is_some_and(|c| c[1] > 500.0), "{l:?}");
 }

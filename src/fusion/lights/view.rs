@@ -109,7 +109,53 @@ pub struct SkyView<'a> {
     ///
     /// [`PairLights::near`]: super::PairLights::near
     pub near: Vec<NearLight>,
+    /// Neighbouring frames of the walk, which see a far source in the same
+    /// world direction: where every one of them measured that direction
+    /// unclipped, a bright probe sample there is no far source (a lamp or a
+    /// patch one probe sees past a corner, not the sky).
+    pub witnesses: Vec<Witness<'a>>,
 }
+
+/// A neighbouring frame as a witness of the far sources: its linearised radiance,
+/// its pose and its white point.
+#[derive(Clone, Copy, Debug)]
+pub struct Witness<'a> {
+    pub radiance: &'a HdrImage,
+    pub pose: Pose,
+    pub white: f32,
+}
+
+impl Witness<'_> {
+    /// True when this frame measured world direction `dw` unclipped: no channel
+    /// at the white point in the pixel there or its eight neighbours (a far
+    /// source brighter than the white point would clip them, pixel-sized or
+    /// not; the neighbours absorb the sampling's half-pixel).
+    pub fn unclipped(&self, dw: Vec3) -> bool {
+        let img = self.radiance;
+        let (w, h) = (img.width(), img.height());
+        if w == 0 || h == 0 {
+            return false;
+        }
+        let d = self.pose.world_from_camera.transpose() * dw;
+        let (u, v) = crate::sphere::dir_to_uv(d);
+        let (cx, cy) = ((u * w as f32) as i64, (v * h as f32) as i64);
+        let limit = CLIPPED_FRACTION * self.white;
+        for dy in -1..=1i64 {
+            let yy = (cy + dy).clamp(0, h as i64 - 1) as usize;
+            for dx in -1..=1i64 {
+                let xx = (cx + dx).rem_euclid(w as i64) as usize;
+                if img.get(xx, yy).iter().any(|&c| !(c < limit)) {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+}
+
+/// A channel this close to the white point counts as clipped for a witness (the
+/// clip code's neighbours bleed into it).
+const CLIPPED_FRACTION: f32 = 0.95;
 
 /// A light placed at a finite distance, as a ball: where it is (world axes) and
 /// how large it is (the radius that holds the solid angle a probe saw it fill).
@@ -157,6 +203,9 @@ impl SkyView<'_> {
             let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
             if luminance(c) <= self.floor {
                 continue;
+            }
+            if !self.witnesses.is_empty() && self.witnesses.iter().all(|w| w.unclipped(dw)) {
+                return None;
             }
             let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
             for k in 0..3 {
