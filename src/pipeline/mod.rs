@@ -423,7 +423,7 @@ pub fn run(
     params: &RunParams,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<RunReport> {
-    run_named(scene, out_dir, params, progress, "report.json", true)
+    run_named(scene, out_dir, params, progress, "report.json", None)
 }
 
 fn run_named(
@@ -432,8 +432,13 @@ fn run_named(
     params: &RunParams,
     progress: &(dyn Fn(usize, usize) + Sync),
     report_name: &str,
-    whole_walk: bool,
+    shard: Option<(usize, usize)>,
 ) -> Result<RunReport> {
+    // A shard computes every `count`-th frame of the whole walk (whose
+    // neighbours, not the shard's, witness its far sources); the walk as one
+    // sequence needs every frame.
+    let mine = |i: usize| shard.map_or(true, |(k, c)| i % c == k);
+    let whole_walk = shard.map_or(true, |(_, c)| c == 1);
     use rayon::prelude::*;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     crate::fsutil::remove_stale_temps(out_dir);
@@ -444,9 +449,14 @@ fn run_named(
     let inputs: Vec<(Vec<usize>, String, Option<FrameRecord>)> = scene
         .frames
         .iter()
-        .map(|f| {
+        .enumerate()
+        .map(|(i, f)| {
             let (used, fp) = frame_inputs(scene, f, params, &settings);
-            let kept = up_to_date(out_dir, f, &fp);
+            let kept = if mine(i) {
+                up_to_date(out_dir, f, &fp)
+            } else {
+                None
+            };
             (used, fp, kept)
         })
         .collect();
@@ -454,8 +464,8 @@ fn run_named(
     // to compute needs it, so memory does not grow with the number of probes (at
     // 7776 x 3888 each takes 360 MB).
     let remaining: Vec<AtomicUsize> = scene.probes.iter().map(|_| AtomicUsize::new(0)).collect();
-    for (used, _, kept) in &inputs {
-        if kept.is_none() {
+    for (i, (used, _, kept)) in inputs.iter().enumerate() {
+        if kept.is_none() && mine(i) {
             for &u in used {
                 remaining[u].fetch_add(1, Ordering::SeqCst);
             }
@@ -494,7 +504,7 @@ fn run_named(
         }
     };
     let done = AtomicUsize::new(0);
-    let total = scene.frames.len();
+    let total = (0..scene.frames.len()).filter(|&i| mine(i)).count();
     let exr = io::ExrWriteOptions {
         compression: params.exr_compression,
         ..Default::default()
@@ -556,6 +566,9 @@ fn run_named(
         let Some(frame) = scene.frames.get(i) else {
             break;
         };
+        if !mine(i) {
+            continue;
+        }
         let (used, fp, kept) = &inputs[i];
         let r = match kept {
             Some(rec) => Ok((rec.clone(), true)),
@@ -574,7 +587,10 @@ fn run_named(
     });
     let mut frames = Vec::new();
     let mut resumed = Vec::new();
-    for r in results {
+    for (i, r) in results.into_iter().enumerate() {
+        if !mine(i) {
+            continue;
+        }
         let r = r
             .into_inner()
             .map_err(|_| Error::Invalid("frame result lock poisoned".into()))?
@@ -650,21 +666,13 @@ pub fn run_shard(
             "shard {index}/{count}: the index must be below the count"
         )));
     }
-    let mut sub = scene.clone();
-    sub.frames = scene
-        .frames
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| i % count == index)
-        .map(|(_, f)| f.clone())
-        .collect();
     run_named(
-        &sub,
+        scene,
         out_dir,
         params,
         progress,
         &format!("report.shard-{index}-of-{count}.json"),
-        count == 1,
+        Some((index, count)),
     )
 }
 
