@@ -7,7 +7,7 @@
 use super::edges::carry_with_sharp_edges;
 use super::lights::SkyView;
 use super::regions::{Kind, Pixels, Region};
-use super::Measured;
+use super::{FusionParams, Measured};
 use crate::image::{luminance, HdrImage};
 use crate::sphere::sample_px;
 use std::collections::HashMap;
@@ -35,13 +35,13 @@ fn shifted(estimate: &HdrImage, px: &Pixels, regions: &[Region], i: usize) -> [f
 
 /// Phase 3: far sources (sky through a window) the probes see in the region's
 /// directions, for regions with no light carried through a surface; used where
-/// they cover any of a region's fully clipped pixels (the neighbouring frames
-/// witness each pixel's lookup: [`super::lights::Witness`]).
+/// they cover at least `min_far_cover` of a region's fully clipped solid angle.
 /// Kept per covered pixel only: regions are a few percent of a panorama.
 fn far_sources(
     px: &Pixels,
     regions: &mut [Region],
     sky: Option<&SkyView>,
+    p: &FusionParams,
 ) -> HashMap<usize, [f32; 3]> {
     let mut sky_rad = HashMap::new();
     let Some(sky) = sky else {
@@ -66,7 +66,7 @@ fn far_sources(
     }
     for r in regions.iter_mut() {
         let c = r.far.cover;
-        r.far.ok = c.1 > 0.0 && c.0 > 0.0;
+        r.far.ok = c.1 > 0.0 && c.0 >= p.min_far_cover * c.1;
     }
     // The median (by luminance) of each region's covered pixels: the least the
     // others get (a mean would spread a sun's core over them).
@@ -515,9 +515,10 @@ pub(super) fn fill(
     px: &mut Pixels,
     regions: &mut [Region],
     sky: Option<&SkyView>,
+    p: &FusionParams,
     out: &mut HdrImage,
 ) {
-    let sky_rad = far_sources(px, regions, sky);
+    let sky_rad = far_sources(px, regions, sky, p);
     let look = Lookups {
         sky: sky_rad,
         carried: carry_with_sharp_edges(px, regions, frame.white),
