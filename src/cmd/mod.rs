@@ -1,9 +1,20 @@
 //! Subcommands with a module of their own: the arguments and what the command
-//! prints, around one library call. (The older commands still live in
-//! `main.rs`; they move here as they are touched.)
+//! prints, around one library call; `args` holds what they share. (The small
+//! file conversions, `init`, `calibrate` and `fisheye` still live in
+//! `main.rs`.)
 
+pub mod args;
+pub mod bench;
 pub mod cache;
+pub mod composite;
+pub mod corpus;
+pub mod demo;
+pub mod eval;
 pub mod export;
+pub mod localize;
+pub mod prefilter;
+pub mod render;
+pub mod run;
 
 /// The specular cube's size, mips and samples, as `prefilter` and `export` take
 /// them.

@@ -758,7 +758,17 @@ pub fn predict_frame(
     params: &RunParams,
 ) -> Result<Prediction> {
     let witnesses = load_witnesses(scene, frame, params);
-    predict_held(scene, frame, sdr, lin, used, access, params, &[], &witnesses)
+    predict_held(
+        scene,
+        frame,
+        sdr,
+        lin,
+        used,
+        access,
+        params,
+        &[],
+        &witnesses,
+    )
 }
 
 /// [`predict_frame`], with the fusion's regions named in `walk` held to the
