@@ -1,9 +1,7 @@
 //! `lumiprobe` command line: one subcommand per workflow step.
 
 use clap::{Parser, Subcommand};
-use lumiprobe::image::io;
-use lumiprobe::{Error, HdrImage, Result};
-use std::path::PathBuf;
+use lumiprobe::Result;
 
 mod cmd;
 
@@ -55,112 +53,32 @@ enum Cmd {
     Composite(cmd::composite::CompositeArgs),
     /// Draft a manifest (lumiprobe.toml) for a capture folder: probes (HDR files or
     /// bracket folders), frames (a folder or a video), poses.json when present.
-    Init {
-        /// The capture folder.
-        folder: PathBuf,
-        /// Where to write the manifest (default: FOLDER/lumiprobe.toml).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Replace an existing manifest.
-        #[arg(long)]
-        force: bool,
-    },
+    Init(cmd::init::InitArgs),
     /// Find every frame's and probe's pose with COLMAP (pinhole views cut from the
     /// panoramas); with reference poses in the scene, report the errors after a
     /// similarity alignment.
     Localize(cmd::localize::LocalizeArgs),
     /// Recover the SDR frames' exposure gain against the probes (radiance =
     /// response⁻¹(code) / gain) and compare it with the scene's documented gain.
-    Calibrate {
-        /// Scene folder (with poses.json) or the poses.json itself.
-        scene: PathBuf,
-    },
+    Calibrate(cmd::calibrate::CalibrateArgs),
     /// Convert a side-by-side dual-fisheye image (two-lens 360° cameras such as
     /// the Gear 360) to an equirect panorama: 8-bit in, 8-bit out; HDR in, HDR out.
-    Fisheye {
-        /// Input image (.jpg/.png, or .exr/.hdr/.pfm).
-        input: PathBuf,
-        /// Output image, same kind as the input.
-        output: PathBuf,
-        /// Lens field of view in degrees (at least 180).
-        #[arg(long, value_parser = parse_finite, default_value_t = 195.0)]
-        fov: f32,
-        /// Width in degrees of the cross-fade where both lenses see.
-        #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::capture::fisheye::DEFAULT_BLEND_DEG)]
-        blend: f32,
-        /// Output size WxH (default: the input's size).
-        #[arg(long, value_parser = parse_size)]
-        size: Option<(usize, usize)>,
-    },
+    Fisheye(cmd::fisheye::FisheyeArgs),
     /// Merge exposure brackets into one HDR panorama (Debevec-Malik response
     /// recovery, hat-weighted merge); reports what clipped even in the darkest frame.
     Merge(lumiprobe::capture::MergeArgs),
     /// Scores for two HDR panoramas (the second is the reference).
-    Compare {
-        /// Prediction.
-        a: PathBuf,
-        /// Reference.
-        b: PathBuf,
-    },
+    Compare(cmd::compare::CompareArgs),
     /// Convert between HDR formats (.exr, .hdr, .pfm) by extension; NaN, infinite
     /// and negative samples are repaired (zero; +inf the brightest finite sample)
     /// with a warning that counts them.
-    Convert {
-        /// Input file.
-        input: PathBuf,
-        /// Output file.
-        output: PathBuf,
-        /// Compression when the output is EXR.
-        #[arg(long, value_enum, default_value_t = lumiprobe::image::io::ExrCompression::Zip)]
-        exr_compression: lumiprobe::image::io::ExrCompression,
-    },
+    Convert(cmd::convert::ConvertArgs),
     /// Tone-map an HDR image to an 8-bit PNG/JPEG.
-    Tonemap {
-        /// Input HDR file.
-        input: PathBuf,
-        /// Output 8-bit file.
-        output: PathBuf,
-        /// Operator.
-        #[arg(long, value_enum, default_value_t = Operator::Reinhard05)]
-        operator: Operator,
-        /// Exposure in EV for `exposure`.
-        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-        ev: f32,
-    },
+    Tonemap(cmd::tonemap::TonemapArgs),
     /// Cut a panorama into six cube faces (`<stem>_<face>.<ext>`).
-    Cube {
-        /// Input HDR panorama.
-        input: PathBuf,
-        /// Output folder.
-        #[arg(long)]
-        out: PathBuf,
-        /// Face size in pixels (default: width / 4).
-        #[arg(long)]
-        size: Option<usize>,
-    },
+    Cube(cmd::cube::CubeArgs),
     /// Rotate a panorama by yaw/pitch/roll in degrees.
-    Rotate {
-        /// Input HDR panorama.
-        input: PathBuf,
-        /// Output HDR panorama.
-        output: PathBuf,
-        /// Yaw (right positive).
-        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-        yaw: f32,
-        /// Pitch (up positive).
-        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-        pitch: f32,
-        /// Roll (clockwise positive).
-        #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-        roll: f32,
-    },
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum Operator {
-    Reinhard05,
-    Reinhard,
-    Exposure,
+    Rotate(cmd::rotate::RotateArgs),
 }
 
 /// The command line with the tuning options hidden from `--help` (they still
@@ -213,149 +131,20 @@ fn real_main(cli: Cli) -> Result<()> {
         Cmd::Composite(args) => cmd::composite::run(args, cli.quiet)?,
         Cmd::Prefilter(args) => cmd::prefilter::run(args, cli.quiet)?,
         Cmd::Render(args) => cmd::render::run(args, cli.quiet)?,
-        Cmd::Init { folder, out, force } => {
-            let text = lumiprobe::scene::manifest::Manifest::draft(&folder)?;
-            let path = out.unwrap_or_else(|| folder.join("lumiprobe.toml"));
-            if path.exists() && !force {
-                return Err(Error::Invalid(format!(
-                    "{} exists; pass --force to replace it",
-                    path.display()
-                )));
-            }
-            lumiprobe::fsutil::write_atomic(&path, text.as_bytes())?;
-            // Check that the draft reads back.
-            lumiprobe::scene::manifest::Manifest::load(&path)?;
-            if !cli.quiet {
-                eprintln!("wrote {}", path.display());
-            }
-        }
+        Cmd::Init(args) => cmd::init::run(args, cli.quiet)?,
         Cmd::Localize(args) => cmd::localize::run(args, cli.quiet)?,
-        Cmd::Calibrate { scene } => {
-            let scene = lumiprobe::pipeline::plan::load_scene(&scene, !cli.quiet)?;
-            let est = lumiprobe::capture::calibrate::calibrate_gain(
-                &scene,
-                &lumiprobe::capture::calibrate::CalibrateOptions::default(),
-            )?;
-            println!(
-                "{}: recovered gain {:.5} from {} frames (spread: log IQR {:.3}); scene file says {:.5} ({:+.2}%)",
-                scene.name,
-                est.gain,
-                est.frames_used,
-                est.log_iqr,
-                scene.path_gain,
-                100.0 * (est.gain / scene.path_gain - 1.0)
-            );
-        }
-        Cmd::Fisheye {
-            input,
-            output,
-            fov,
-            blend,
-            size,
-        } => {
-            use lumiprobe::capture::fisheye::{dual_fisheye_to_equirect, DualFisheye};
-            let cfg = DualFisheye {
-                blend_deg: blend,
-                ..DualFisheye::new(fov)
-            };
-            let named = |e: Error| match e {
-                Error::Invalid(m) => Error::Invalid(format!("{}: {m}", input.display())),
-                other => other,
-            };
-            if io::Format::from_extension(&input).is_some_and(|f| f.is_hdr()) {
-                let img = read_input(&input)?;
-                let (w, h) = size.unwrap_or((img.width(), img.height()));
-                let out = dual_fisheye_to_equirect(&img, &cfg, w, h).map_err(named)?;
-                io::write_hdr(&output, &out)?;
-            } else {
-                let img = io::read_sdr(&input)?;
-                let (w, h) = size.unwrap_or((img.width(), img.height()));
-                let out = dual_fisheye_to_equirect(&img, &cfg, w, h).map_err(named)?;
-                io::write_sdr(&output, &out)?;
-            }
-            if !cli.quiet {
-                eprintln!("wrote {}", output.display());
-            }
-        }
+        Cmd::Calibrate(args) => cmd::calibrate::run(args, cli.quiet)?,
+        Cmd::Fisheye(args) => cmd::fisheye::run(args, cli.quiet)?,
         Cmd::Export(args) => cmd::export::run(args, cli.quiet)?,
         Cmd::Cache(args) => cmd::cache::run(args, cli.quiet)?,
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args, cli.quiet)?;
         }
-        Cmd::Compare { a, b } => {
-            let pa = read_input(&a)?;
-            let pb = read_input(&b)?;
-            let m = lumiprobe::eval::compare_resized(&pa, &pb)?;
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&m).map_err(|e| Error::Invalid(e.to_string()))?
-            );
-        }
-        Cmd::Convert {
-            input,
-            output,
-            exr_compression,
-        } => {
-            let img = read_input(&input)?;
-            let exr = io::ExrWriteOptions {
-                compression: exr_compression,
-                ..Default::default()
-            };
-            io::write_hdr_with(&output, &img, &exr)?;
-        }
-        Cmd::Tonemap {
-            input,
-            output,
-            operator,
-            ev,
-        } => {
-            let img = read_input(&input)?;
-            let (w, h) = (img.width(), img.height());
-            let codes = match operator {
-                // Straight to 8 bits: no float copy of a large panorama.
-                Operator::Reinhard05 => {
-                    lumiprobe::tonemap::Reinhard05::default().apply_quantized(&img)
-                }
-                Operator::Reinhard => lumiprobe::tonemap::quantize(
-                    &lumiprobe::tonemap::reinhard_global(&img, 0.18, None, None),
-                ),
-                Operator::Exposure => {
-                    lumiprobe::tonemap::quantize(&lumiprobe::tonemap::exposure_srgb(&img, ev))
-                }
-            };
-            drop(img);
-            io::write_sdr(&output, &lumiprobe::SdrImage::from_vec(w, h, codes)?)?;
-        }
-        Cmd::Cube { input, out, size } => {
-            let img = read_input(&input)?;
-            let n = size.unwrap_or(img.width() / 4).max(1);
-            let stem = input
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "face".into());
-            let ext = input
-                .extension()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "exr".into());
-            for (f, face) in lumiprobe::sphere::FACES
-                .iter()
-                .zip(lumiprobe::sphere::cube::equirect_to_cube(&img, n))
-            {
-                io::write_hdr(&out.join(format!("{stem}_{}.{ext}", f.name())), &face)?;
-            }
-        }
-        Cmd::Rotate {
-            input,
-            output,
-            yaw,
-            pitch,
-            roll,
-        } => {
-            let img = read_input(&input)?;
-            let r = lumiprobe::sphere::ypr_to_mat(yaw, pitch, roll);
-            let out: HdrImage = lumiprobe::sphere::rotate(&img, r, img.width(), img.height());
-            io::write_hdr(&output, &out)?;
-        }
+        Cmd::Compare(args) => cmd::compare::run(args, cli.quiet)?,
+        Cmd::Convert(args) => cmd::convert::run(args, cli.quiet)?,
+        Cmd::Tonemap(args) => cmd::tonemap::run(args, cli.quiet)?,
+        Cmd::Cube(args) => cmd::cube::run(args, cli.quiet)?,
+        Cmd::Rotate(args) => cmd::rotate::run(args, cli.quiet)?,
     }
     Ok(())
 }

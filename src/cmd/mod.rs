@@ -1,20 +1,26 @@
 //! Subcommands with a module of their own: the arguments and what the command
-//! prints, around one library call; `args` holds what they share. (The small
-//! file conversions, `init`, `calibrate` and `fisheye` still live in
-//! `main.rs`.)
+//! prints, around one library call; `args` holds what they share.
 
 pub mod args;
 pub mod bench;
 pub mod cache;
+pub mod calibrate;
+pub mod compare;
 pub mod composite;
+pub mod convert;
 pub mod corpus;
+pub mod cube;
 pub mod demo;
 pub mod eval;
 pub mod export;
+pub mod fisheye;
+pub mod init;
 pub mod localize;
 pub mod prefilter;
 pub mod render;
+pub mod rotate;
 pub mod run;
+pub mod tonemap;
 
 /// The specular cube's size, mips and samples, as `prefilter` and `export` take
 /// them.
