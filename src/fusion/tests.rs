@@ -770,7 +770,7 @@ fn a_window_region_takes_the_sky_the_other_probes_see_in_its_directions() {
         frame,
         floor: white,
         near: Vec::new(),
-        witnesses: Vec::new(),
+        witnesses: &[],
     };
     // Looking away from the window, no probe sees anything bright.
     assert!(sky
@@ -1147,7 +1147,7 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
         frame,
         floor: white,
         near: Vec::new(),
-        witnesses: Vec::new(),
+        witnesses: &[],
     };
     let towards_window = glam::Vec3::new(3.0, 0.0, 1.6) - frame.position;
     let light: Vec<FrameLight> = light_power

@@ -18,14 +18,14 @@ use crate::error::{Error, Result};
 use crate::flow::method::{
     flow_frame_scaled, restore_warped_lights, FlowMethodParams, FlowReport, RotatedSource,
 };
-use crate::fusion::lights::{pair_lights, PairLights};
+use crate::fusion::lights::{pair_lights, PairLights, Witness};
 use crate::fusion::{
     fuse_with_lights,
     walk::{Mend, WalkMode},
     Evidence, FusionParams, FusionReport, Measured, ProbeEvidence,
 };
 use crate::image::{io, HdrImage, SdrImage};
-use crate::scene::{distance_m, Frame, Pose, Scene};
+use crate::scene::{distance_m, Frame, Scene};
 use crate::warp::{self, PreparedProbe, WarpParams, WarpReport};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -373,14 +373,23 @@ fn witness_frames<'s>(scene: &'s Scene, frame: &Frame, params: &RunParams) -> Ve
         .collect()
 }
 
-/// The witnesses' radiance at the working size; a witness that cannot be read
-/// is left out (its own frame reports the error).
-fn load_witnesses(scene: &Scene, frame: &Frame, params: &RunParams) -> Vec<(HdrImage, Pose)> {
+/// Radiance of the clip code in the frames' linearised units: the least a
+/// clipped channel holds.
+fn white_point(scene: &Scene, params: &RunParams) -> f32 {
+    scene
+        .response
+        .decode(params.flow.censor.clip_code as f32 / 255.0)
+        / scene.path_gain
+}
+
+/// The witnesses at the working size; a witness that cannot be read is left
+/// out (its own frame reports the error).
+fn load_witnesses(scene: &Scene, frame: &Frame, params: &RunParams) -> Vec<Witness> {
     witness_frames(scene, frame, params)
         .into_iter()
         .filter_map(|n| {
             let sdr = load_frame(n, params.size).ok()?;
-            Some((linearize(&sdr, scene), n.pose))
+            Some(Witness::new(&linearize(&sdr, scene), white_point(scene, params), n.pose))
         })
         .collect()
 }
@@ -783,7 +792,7 @@ fn predict_held(
     access: ProbeAccess,
     params: &RunParams,
     walk: &[Mend],
-    witnesses: &[(HdrImage, Pose)],
+    witnesses: &[Witness],
 ) -> Result<Prediction> {
     let (w, h) = (sdr.width(), sdr.height());
     let (get_probe, pairs) = (access.get, access.pairs);
@@ -806,10 +815,7 @@ fn predict_held(
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) =
             predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[], &[])?;
-        let white = scene
-            .response
-            .decode(params.flow.censor.clip_code as f32 / 255.0)
-            / scene.path_gain;
+        let white = white_point(scene, params);
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
         let probes: Vec<_> = used
@@ -839,14 +845,7 @@ fn predict_held(
             frame: frame.pose,
             floor: white,
             near,
-            witnesses: witnesses
-                .iter()
-                .map(|(radiance, pose)| crate::fusion::lights::Witness {
-                    radiance,
-                    pose: *pose,
-                    white,
-                })
-                .collect(),
+            witnesses,
         });
         // What the probes measured, for the ledger: each probe's light above
         // the white point and its peak, found once.

@@ -420,7 +420,7 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
         frame,
         floor: 1.0,
         near,
-        witnesses: Vec::new(),
+        witnesses: &[],
     };
     // With nothing placed the lamp is taken for a far source.
     assert!(sky(Vec::new()).radiance(d).is_some_and(|c| c[1] > 500.0));
@@ -481,19 +481,16 @@ fn neighbours_that_measured_a_direction_unclipped_refuse_a_far_source_there() {
         (img, pose)
     };
     let sky = |witnesses: &[(HdrImage, Pose)]| -> (Option<[f32; 3]>, Option<[f32; 3]>) {
+        let witnesses: Vec<Witness> = witnesses
+            .iter()
+            .map(|(radiance, pose)| Witness::new(radiance, 1.0, *pose))
+            .collect();
         let view = SkyView {
             probes: vec![(&img, &probe)],
             frame,
             floor: 1.0,
             near: Vec::new(),
-            witnesses: witnesses
-                .iter()
-                .map(|(radiance, pose)| Witness {
-                    radiance,
-                    pose: *pose,
-                    white: 1.0,
-                })
-                .collect(),
+            witnesses: &witnesses,
         };
         let to_cam = frame.world_from_camera.transpose();
         (

@@ -113,38 +113,56 @@ pub struct SkyView<'a> {
     /// world direction: where every one of them measured that direction
     /// unclipped, a bright probe sample there is no far source (a lamp or a
     /// patch one probe sees past a corner, not the sky).
-    pub witnesses: Vec<Witness<'a>>,
+    pub witnesses: &'a [Witness],
 }
 
-/// A neighbouring frame as a witness of the far sources: its linearised radiance,
-/// its pose and its white point.
-#[derive(Clone, Copy, Debug)]
-pub struct Witness<'a> {
-    pub radiance: &'a HdrImage,
-    pub pose: Pose,
-    pub white: f32,
+/// A neighbouring frame as a witness of the far sources: which of its pixels
+/// clipped, and its pose. Holds one byte per pixel, not the frame's radiance.
+#[derive(Clone, Debug)]
+pub struct Witness {
+    clipped: Vec<bool>,
+    width: usize,
+    height: usize,
+    pose: Pose,
 }
 
-impl Witness<'_> {
-    /// True when this frame measured world direction `dw` unclipped: no channel
-    /// at the white point in the pixel there or its eight neighbours (a far
-    /// source brighter than the white point would clip them, pixel-sized or
-    /// not; the neighbours absorb the sampling's half-pixel).
+impl Witness {
+    /// The witness a frame with linearised `radiance`, white point `white` and
+    /// `pose` makes: a pixel is clipped when any channel is at 95% of the white
+    /// point or above (the clip code's neighbours bleed into it).
+    pub fn new(radiance: &HdrImage, white: f32, pose: Pose) -> Self {
+        let limit = CLIPPED_FRACTION * white;
+        let (width, height) = (radiance.width(), radiance.height());
+        let mut clipped = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                clipped.push(radiance.get(x, y).iter().any(|&c| !(c < limit)));
+            }
+        }
+        Witness {
+            clipped,
+            width,
+            height,
+            pose,
+        }
+    }
+
+    /// True when this frame measured world direction `dw` unclipped: neither
+    /// the pixel there nor its eight neighbours clipped (a far source brighter
+    /// than the white point would clip them, pixel-sized or not; the
+    /// neighbours absorb the sampling's half-pixel).
     pub fn unclipped(&self, dw: Vec3) -> bool {
-        let img = self.radiance;
-        let (w, h) = (img.width(), img.height());
+        let (w, h) = (self.width, self.height);
         if w == 0 || h == 0 {
             return false;
         }
-        let d = self.pose.world_from_camera.transpose() * dw;
-        let (u, v) = crate::sphere::dir_to_uv(d);
+        let (u, v) = crate::sphere::dir_to_uv(self.pose.world_from_camera.transpose() * dw);
         let (cx, cy) = ((u * w as f32) as i64, (v * h as f32) as i64);
-        let limit = CLIPPED_FRACTION * self.white;
         for dy in -1..=1i64 {
             let yy = (cy + dy).clamp(0, h as i64 - 1) as usize;
             for dx in -1..=1i64 {
                 let xx = (cx + dx).rem_euclid(w as i64) as usize;
-                if img.get(xx, yy).iter().any(|&c| !(c < limit)) {
+                if self.clipped[yy * w + xx] {
                     return false;
                 }
             }
