@@ -122,22 +122,24 @@ pub fn run(a: LocalizeArgs, quiet: bool) -> Result<()> {
         for l in &loc {
             let Some(pose) = &l.pose else { continue };
             if l.is_probe {
-                let p = scene
-                    .probes
-                    .iter()
-                    .find(|p| p.id == l.id)
-                    .expect("same ids");
+                let p = scene.probes.iter().find(|p| p.id == l.id).ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "localization names {}, which the scene does not hold",
+                        l.id
+                    ))
+                })?;
                 probes.push(entry(
                     &l.id,
                     pose,
                     serde_json::json!({"hdr": p.hdr, "pose_source": l.source}),
                 ));
             } else {
-                let f = scene
-                    .frames
-                    .iter()
-                    .find(|f| f.id == l.id)
-                    .expect("same ids");
+                let f = scene.frames.iter().find(|f| f.id == l.id).ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "localization names {}, which the scene does not hold",
+                        l.id
+                    ))
+                })?;
                 frames.push(entry(
                     &l.id,
                     pose,

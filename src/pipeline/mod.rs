@@ -389,7 +389,11 @@ fn load_witnesses(scene: &Scene, frame: &Frame, params: &RunParams) -> Vec<Witne
         .into_iter()
         .filter_map(|n| {
             let sdr = load_frame(n, params.size).ok()?;
-            Some(Witness::new(&linearize(&sdr, scene), white_point(scene, params), n.pose))
+            Some(Witness::new(
+                &linearize(&sdr, scene),
+                white_point(scene, params),
+                n.pose,
+            ))
         })
         .collect()
 }
