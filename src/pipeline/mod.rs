@@ -329,10 +329,11 @@ fn program_stamp() -> &'static str {
 /// files and poses, and the program build ([`program_stamp`]).
 fn frame_inputs(
     scene: &Scene,
-    frame: &Frame,
+    index: usize,
     params: &RunParams,
     settings: &str,
 ) -> (Vec<usize>, String) {
+    let frame = &scene.frames[index];
     let mut used = scene.probes_by_distance(frame.pose.position);
     used.truncate(params.probes_needed());
     let mut parts = vec![
@@ -348,23 +349,24 @@ fn frame_inputs(
         parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
         parts.push(format!("{:?}", m.pose));
     }
-    for n in witness_frames(scene, frame, params) {
+    for n in witness_frames(scene, index, params) {
         parts.push(file_stamp(&n.sdr));
         parts.push(format!("{:?}", n.pose));
     }
     (used, fingerprint(&parts))
 }
 
-/// The frames that witness `frame`'s far sources (`fusion.far_witness_m`): the
-/// one before it and the one after it in the walk, when within that distance.
-fn witness_frames<'s>(scene: &'s Scene, frame: &Frame, params: &RunParams) -> Vec<&'s Frame> {
+/// The frames that witness the far sources of frame `i` of the walk
+/// (`fusion.far_witness_m`): the one before it and the one after it, when
+/// within that distance.
+fn witness_frames<'s>(scene: &'s Scene, i: usize, params: &RunParams) -> Vec<&'s Frame> {
     let reach = params.fusion.far_witness_m;
+    let Some(frame) = scene.frames.get(i) else {
+        return Vec::new();
+    };
     if params.method != Method::Fusion || !(reach > 0.0) {
         return Vec::new();
     }
-    let Some(i) = scene.frames.iter().position(|f| f.id == frame.id) else {
-        return Vec::new();
-    };
     [i.checked_sub(1), Some(i + 1)]
         .into_iter()
         .flatten()
@@ -382,18 +384,21 @@ fn white_point(scene: &Scene, params: &RunParams) -> f32 {
         / scene.path_gain
 }
 
-/// The witnesses at the working size; a witness that cannot be read is left
-/// out (its own frame reports the error).
-fn load_witnesses(scene: &Scene, frame: &Frame, params: &RunParams) -> Vec<Witness> {
-    witness_frames(scene, frame, params)
+/// The witnesses of frame `i` at the working size, read from their codes
+/// (the frames' radiance per code, as [`linearize`] gives it); a witness that
+/// cannot be read is left out (its own frame reports the error).
+fn load_witnesses(scene: &Scene, i: usize, params: &RunParams) -> Vec<Witness> {
+    let frames = witness_frames(scene, i, params);
+    if frames.is_empty() {
+        return Vec::new();
+    }
+    let radiance = scene.response.decode_lut().map(|v| v / scene.path_gain);
+    let white = white_point(scene, params);
+    frames
         .into_iter()
         .filter_map(|n| {
             let sdr = load_frame(n, params.size).ok()?;
-            Some(Witness::new(
-                &linearize(&sdr, scene),
-                white_point(scene, params),
-                n.pose,
-            ))
+            Some(Witness::from_codes(&sdr, &radiance, white, n.pose))
         })
         .collect()
 }
@@ -418,11 +423,12 @@ pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Resu
     Ok(scene
         .frames
         .iter()
-        .filter(|f| {
-            let (_, fp) = frame_inputs(scene, f, params, &settings);
+        .enumerate()
+        .filter(|&(i, f)| {
+            let (_, fp) = frame_inputs(scene, i, params, &settings);
             up_to_date(out_dir, f, &fp).is_none()
         })
-        .map(|f| f.id.clone())
+        .map(|(_, f)| f.id.clone())
         .collect())
 }
 
@@ -464,7 +470,7 @@ fn run_named(
         .iter()
         .enumerate()
         .map(|(i, f)| {
-            let (used, fp) = frame_inputs(scene, f, params, &settings);
+            let (used, fp) = frame_inputs(scene, i, params, &settings);
             let kept = if mine(i) {
                 up_to_date(out_dir, f, &fp)
             } else {
@@ -528,46 +534,45 @@ fn run_named(
         pairs: &pairs,
     };
     let noted: Mutex<Vec<String>> = Mutex::new(Vec::new());
-    let compute =
-        |frame: &Frame, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
-            let probe_meta = &scene.probes[used[0]];
-            let out = out_dir.join(format!("{}.exr", frame.id));
-            let side = out_dir.join(format!("{}.json", frame.id));
-            let sdr = load_frame(frame, params.size)?;
-            let mut repaired = 0;
-            for &u in used {
-                repaired += get_probe(u)?.1;
-            }
-            let probe_size = get_probe(used[0])
-                .map(|(p, _)| (p.image.width(), p.image.height()))
-                .unwrap_or((sdr.width(), sdr.height()));
-            note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
-            let t = Instant::now();
-            let lin = linearize(&sdr, scene);
-            let witnesses = load_witnesses(scene, frame, params);
-            let (img, warp_report, flow_report, fusion_report) = predict_held(
-                scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
-            )?;
-            let total_ms = t.elapsed().as_secs_f64() * 1e3;
-            drop((sdr, lin));
-            io::write_hdr_with(&out, &img, &exr)?;
-            let rec = FrameRecord {
-                id: frame.id.clone(),
-                probe: probe_meta.id.clone(),
-                probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
-                probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
-                warp: warp_report,
-                flow: flow_report,
-                fusion: fusion_report,
-                total_ms,
-                repaired_pixels: repaired,
-                fingerprint: fp.to_string(),
-            };
-            let json =
-                serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
-            crate::fsutil::write_atomic(&side, &json)?;
-            Ok(rec)
+    let compute = |i: usize, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
+        let frame = &scene.frames[i];
+        let probe_meta = &scene.probes[used[0]];
+        let out = out_dir.join(format!("{}.exr", frame.id));
+        let side = out_dir.join(format!("{}.json", frame.id));
+        let sdr = load_frame(frame, params.size)?;
+        let mut repaired = 0;
+        for &u in used {
+            repaired += get_probe(u)?.1;
+        }
+        let probe_size = get_probe(used[0])
+            .map(|(p, _)| (p.image.width(), p.image.height()))
+            .unwrap_or((sdr.width(), sdr.height()));
+        note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
+        let t = Instant::now();
+        let lin = linearize(&sdr, scene);
+        let witnesses = load_witnesses(scene, i, params);
+        let (img, warp_report, flow_report, fusion_report) = predict_held(
+            scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
+        )?;
+        let total_ms = t.elapsed().as_secs_f64() * 1e3;
+        drop((sdr, lin));
+        io::write_hdr_with(&out, &img, &exr)?;
+        let rec = FrameRecord {
+            id: frame.id.clone(),
+            probe: probe_meta.id.clone(),
+            probe_distance_m: distance_m(probe_meta.pose.position, frame.pose.position),
+            probes: used.iter().map(|&u| scene.probes[u].id.clone()).collect(),
+            warp: warp_report,
+            flow: flow_report,
+            fusion: fusion_report,
+            total_ms,
+            repaired_pixels: repaired,
+            fingerprint: fp.to_string(),
         };
+        let json = serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
+        crate::fsutil::write_atomic(&side, &json)?;
+        Ok(rec)
+    };
     // Each worker takes the next frame in walk order, so the frames in flight are
     // neighbours that share their probes.
     let next = AtomicUsize::new(0);
@@ -576,9 +581,9 @@ fn run_named(
     let workers = rayon::current_num_threads().clamp(1, scene.frames.len().max(1));
     (0..workers).into_par_iter().for_each(|_| loop {
         let i = next.fetch_add(1, Ordering::SeqCst);
-        let Some(frame) = scene.frames.get(i) else {
+        if i >= scene.frames.len() {
             break;
-        };
+        }
         if !mine(i) {
             continue;
         }
@@ -586,7 +591,7 @@ fn run_named(
         let r = match kept {
             Some(rec) => Ok((rec.clone(), true)),
             None => {
-                let r = compute(frame, used, fp, &[]).map(|rec| (rec, false));
+                let r = compute(i, used, fp, &[]).map(|rec| (rec, false));
                 release(used);
                 r
             }
@@ -638,7 +643,7 @@ fn run_named(
             .par_iter()
             .map(|&i| {
                 let (used, fp, _) = &inputs[i];
-                compute(&scene.frames[i], used, fp, &wanted[i])
+                compute(i, used, fp, &wanted[i])
             })
             .collect();
         for (&i, r) in redo.iter().zip(redone) {
@@ -770,7 +775,13 @@ pub fn predict_frame(
     access: ProbeAccess,
     params: &RunParams,
 ) -> Result<Prediction> {
-    let witnesses = load_witnesses(scene, frame, params);
+    // The frame's place in the walk, for its neighbours.
+    let witnesses = scene
+        .frames
+        .iter()
+        .position(|f| f.id == frame.id)
+        .map(|i| load_witnesses(scene, i, params))
+        .unwrap_or_default();
     predict_held(
         scene,
         frame,

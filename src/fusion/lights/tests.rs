@@ -511,3 +511,40 @@ fn neighbours_that_measured_a_direction_unclipped_refuse_a_far_source_there() {
     let (l, _) = sky(&[neighbour(-0.15, false), neighbour(0.15, true)]);
     assert!(l.is_some_and(|c| c[1] > 500.0), "{l:?}");
 }
+
+/// A witness read from a frame's codes is the witness of its radiance.
+#[test]
+fn a_witness_from_codes_equals_the_witness_from_radiance() {
+    let (w, h) = (64, 32);
+    let codes = crate::image::SdrImage::from_vec(
+        w,
+        h,
+        (0..w * h * 3)
+            .map(|i| ((i * 37 + i / 5) % 256) as u8)
+            .collect(),
+    )
+    .unwrap();
+    // A gamma-like decode: code 250 at the white point 1.
+    let radiance: [f32; 256] = std::array::from_fn(|c| (c as f32 / 250.0).powf(2.2));
+    let lin = HdrImage::from_vec(
+        w,
+        h,
+        codes.data().iter().map(|&c| radiance[c as usize]).collect(),
+    )
+    .unwrap();
+    let pose = upright(Vec3::new(0.0, 0.0, 1.5));
+    let (a, b) = (
+        Witness::new(&lin, 1.0, pose),
+        Witness::from_codes(&codes, &radiance, 1.0, pose),
+    );
+    let (mut seen, mut open) = (0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+            assert_eq!(a.unclipped(d), b.unclipped(d), "({x}, {y})");
+            seen += 1;
+            open += usize::from(a.unclipped(d));
+        }
+    }
+    assert!(open > 0 && open < seen, "{open} of {seen} unclipped");
+}

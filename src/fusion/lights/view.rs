@@ -1,7 +1,7 @@
 //! A placed light and far sources as one frame sees them.
 
 use super::{Surface, View};
-use crate::image::{luminance, HdrImage};
+use crate::image::{luminance, HdrImage, SdrImage};
 use crate::scene::Pose;
 use crate::sphere::sample_dir;
 use glam::Vec3;
@@ -132,17 +132,33 @@ impl Witness {
     /// point or above (the clip code's neighbours bleed into it).
     pub fn new(radiance: &HdrImage, white: f32, pose: Pose) -> Self {
         let limit = CLIPPED_FRACTION * white;
-        let (width, height) = (radiance.width(), radiance.height());
-        let mut clipped = Vec::with_capacity(width * height);
-        for y in 0..height {
-            for x in 0..width {
-                clipped.push(radiance.get(x, y).iter().any(|&c| !(c < limit)));
-            }
-        }
+        let clipped = radiance
+            .data()
+            .chunks_exact(3)
+            .map(|p| p.iter().any(|&c| !(c < limit)))
+            .collect();
         Witness {
             clipped,
-            width,
-            height,
+            width: radiance.width(),
+            height: radiance.height(),
+            pose,
+        }
+    }
+
+    /// [`Witness::new`] for the frame `codes` whose code `c` has the radiance
+    /// `radiance[c]`, without the frame's radiance ever being made.
+    pub fn from_codes(codes: &SdrImage, radiance: &[f32; 256], white: f32, pose: Pose) -> Self {
+        let limit = CLIPPED_FRACTION * white;
+        let clips = radiance.map(|v| !(v < limit));
+        let clipped = codes
+            .data()
+            .chunks_exact(3)
+            .map(|p| p.iter().any(|&c| clips[c as usize]))
+            .collect();
+        Witness {
+            clipped,
+            width: codes.width(),
+            height: codes.height(),
             pose,
         }
     }
