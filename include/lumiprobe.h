@@ -30,10 +30,16 @@ typedef enum LpStatus {
     LP_OK = 0,
     LP_ERR_INVALID = 1, /* bad arguments: NULL pointer, size mismatch, unknown name */
     LP_ERR_IO = 2,      /* the operating system refused a read or write */
-    LP_ERR_FORMAT = 3,  /* malformed or oversized file */
-    LP_ERR_OPENCV = 4,  /* the OpenCV layer failed */
-    LP_ERR_PANIC = 5    /* internal error; the call was abandoned safely */
+    LP_ERR_FORMAT = 3,      /* a file's contents are malformed */
+    LP_ERR_EXTERNAL = 4,    /* an external library (OpenCV) failed */
+    LP_ERR_PANIC = 5,       /* a panic inside the library (a bug); the call was abandoned safely */
+    LP_ERR_UNSUPPORTED = 6, /* valid input that is not supported (a pixel type, a compression) */
+    LP_ERR_LIMIT = 7,       /* the input asks for more than a limit allows; nothing was allocated */
+    LP_ERR_INTERNAL = 8     /* a check inside the library failed on its own data (a bug) */
 } LpStatus;
+
+/* The earlier name of LP_ERR_EXTERNAL. */
+#define LP_ERR_OPENCV LP_ERR_EXTERNAL
 
 /* An HDR image owned by the library. */
 typedef struct LpImage LpImage;

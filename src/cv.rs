@@ -1,5 +1,5 @@
 //! The one bridge to the C++/OpenCV layer in `cpp/`. All `unsafe` FFI of the crate
-//! lives here; callers get safe functions and [`crate::Error::OpenCv`] for any C++
+//! lives here; callers get safe functions and [`crate::Error::External`] for any C++
 //! exception.
 
 use crate::error::{Error, Result};
@@ -177,7 +177,7 @@ unsafe impl Send for ffi::MatchIndex {}
 unsafe impl Sync for ffi::MatchIndex {}
 
 fn cv_err(e: cxx::Exception) -> Error {
-    Error::OpenCv(e.what().to_string())
+    Error::opencv(e.what())
 }
 
 /// Feature detectors available in Debian's OpenCV (no SURF: xfeatures2d is absent).
@@ -281,7 +281,7 @@ impl MatchIndex {
     pub fn new(train: &Features, flann_checks: i32) -> Result<Self> {
         let p = ffi::build_index(train, flann_checks.max(0)).map_err(cv_err)?;
         if p.is_null() {
-            return Err(Error::OpenCv("index construction returned null".into()));
+            return Err(Error::opencv("index construction returned null"));
         }
         Ok(MatchIndex(p))
     }
@@ -289,10 +289,7 @@ impl MatchIndex {
     /// Matches `query` against the index with Lowe's ratio test: pairs
     /// `(query index, train index)` whose best distance is below `ratio` times the second best.
     pub fn match_ratio(&self, query: &Features, ratio: f32) -> Result<Vec<(usize, usize)>> {
-        let idx = self
-            .0
-            .as_ref()
-            .ok_or_else(|| Error::OpenCv("null index".into()))?;
+        let idx = self.0.as_ref().ok_or_else(|| Error::opencv("null index"))?;
         let flat = ffi::match_ratio(idx, query, ratio).map_err(cv_err)?;
         Ok(flat
             .chunks_exact(2)
@@ -370,12 +367,13 @@ pub fn find_homography(
 pub use ffi::{GcEdge, GcFlow, GcGridParams, GcGridResult};
 
 fn gc_err(e: cxx::Exception) -> Error {
-    Error::Invalid(e.what().to_string())
+    Error::Internal(format!("graph cut: {}", e.what()))
 }
 
 /// Max-flow / min-cut (Boykov & Kolmogorov 2004) on `nodes` nodes with the given arc
 /// pairs and `terminals` = `(source cap, sink cap)` interleaved per node. The C++ side
-/// checks indices and capacities and reports violations as [`Error::Invalid`].
+/// checks indices and capacities and reports violations as [`Error::Internal`]
+/// (the Rust side validated them first).
 pub fn gc_max_flow(nodes: u32, edges: &[GcEdge], terminals: &[f64]) -> Result<GcFlow> {
     ffi::gc_max_flow(nodes, edges, terminals).map_err(gc_err)
 }
@@ -495,6 +493,9 @@ mod tests {
         let a = detect(&img, 96, 96, &plain(Detector::Sift)).unwrap();
         let b = detect(&img, 96, 96, &plain(Detector::Orb)).unwrap();
         let idx = MatchIndex::new(&a, 32).unwrap();
-        assert!(matches!(idx.match_ratio(&b, 0.7), Err(Error::OpenCv(_))));
+        assert!(matches!(
+            idx.match_ratio(&b, 0.7),
+            Err(Error::External { .. })
+        ));
     }
 }

@@ -3,7 +3,12 @@
 
 use std::path::{Path, PathBuf};
 
-/// Everything that can go wrong in lumiprobe.
+/// Everything that can go wrong in lumiprobe, by what the caller can do about
+/// it: fix a file ([`Error::Format`]) or the arguments ([`Error::Invalid`]),
+/// convert the input to something supported ([`Error::Unsupported`]), shrink it
+/// or raise a limit ([`Error::Limit`]), check the disk or permissions
+/// ([`Error::Io`]), install or check an external tool ([`Error::External`]),
+/// or report a bug ([`Error::Internal`]).
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// The operating system refused a read or write.
@@ -23,24 +28,44 @@ pub enum Error {
         /// What is wrong with it.
         msg: String,
     },
-    /// An image declares more pixels than the configured limit allows.
-    #[error("{path}: image of {width}x{height} exceeds the pixel limit of {limit}")]
-    TooLarge {
-        /// The offending file.
-        path: PathBuf,
-        /// Declared width.
-        width: u64,
-        /// Declared height.
-        height: u64,
-        /// The limit in pixels.
-        limit: u64,
+    /// An input asks for more than a limit allows (pixels, triangles, scene-graph
+    /// visits, output size): nothing was allocated for it.
+    #[error("{}{what} exceeds the limit of {limit}", at(path))]
+    Limit {
+        /// The offending file, when the input is one.
+        path: Option<PathBuf>,
+        /// What was asked for ("image of 2000x1000 pixels").
+        what: String,
+        /// The limit, with its unit ("1000 pixels").
+        limit: String,
     },
     /// A caller passed arguments that cannot work (sizes that do not match, …).
     #[error("invalid input: {0}")]
     Invalid(String),
-    /// The OpenCV layer threw; the C++ message is kept.
-    #[error("OpenCV: {0}")]
-    OpenCv(String),
+    /// The input is valid but lumiprobe does not handle it (a pixel type, a
+    /// compression, a texture format): convert it first.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// An external tool or library failed (OpenCV, ffmpeg, COLMAP); its own
+    /// message is kept.
+    #[error("{tool}: {msg}")]
+    External {
+        /// The tool ("OpenCV", "ffmpeg", "COLMAP").
+        tool: &'static str,
+        /// What it said.
+        msg: String,
+    },
+    /// A check inside lumiprobe failed on data it made itself: a bug, to be
+    /// reported with the message.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+/// `"path: "` for a limit naming a file, nothing otherwise.
+fn at(path: &Option<PathBuf>) -> String {
+    path.as_ref()
+        .map(|p| format!("{}: ", p.display()))
+        .unwrap_or_default()
 }
 
 /// Shorthand used throughout the crate.
@@ -52,6 +77,21 @@ impl Error {
         Error::Format {
             path: path.as_ref().to_path_buf(),
             msg: msg.into(),
+        }
+    }
+    /// OpenCV's failure (a C++ exception turned into a message at the bridge).
+    pub fn opencv(msg: impl Into<String>) -> Self {
+        Error::External {
+            tool: "OpenCV",
+            msg: msg.into(),
+        }
+    }
+    /// A limit exceeded by `what`, in file `path` when there is one.
+    pub fn limit(path: Option<&Path>, what: impl Into<String>, limit: impl Into<String>) -> Self {
+        Error::Limit {
+            path: path.map(Path::to_path_buf),
+            what: what.into(),
+            limit: limit.into(),
         }
     }
     /// An I/O error for `path`.
@@ -69,4 +109,10 @@ impl Error {
             source,
         }
     }
+}
+
+/// `value` as pretty JSON. Serialising lumiprobe's own reports fails only on a
+/// bug, so a failure is [`Error::Internal`].
+pub fn to_json<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {
+    serde_json::to_string_pretty(value).map_err(|e| Error::Internal(format!("JSON: {e}")))
 }

@@ -35,12 +35,18 @@ pub enum LpStatus {
     Invalid = 1,
     /// The operating system refused a read or write.
     Io = 2,
-    /// A file's contents are malformed or too large.
+    /// A file's contents are malformed.
     Format = 3,
-    /// The OpenCV layer failed.
-    OpenCv = 4,
-    /// An internal error (a bug): the call was abandoned safely.
+    /// An external library failed (OpenCV).
+    External = 4,
+    /// A panic inside the library (a bug): the call was abandoned safely.
     Panic = 5,
+    /// The input is valid but not supported (a pixel type, a compression).
+    Unsupported = 6,
+    /// The input asks for more than a limit allows; nothing was allocated.
+    Limit = 7,
+    /// A check inside the library failed on data it made itself (a bug).
+    Internal = 8,
 }
 
 /// An HDR image owned by the library.
@@ -59,9 +65,12 @@ fn set_error(msg: String) {
 fn status_of(e: &Error) -> LpStatus {
     match e {
         Error::Io { .. } => LpStatus::Io,
-        Error::Format { .. } | Error::TooLarge { .. } => LpStatus::Format,
-        Error::OpenCv(_) => LpStatus::OpenCv,
-        _ => LpStatus::Invalid,
+        Error::Format { .. } => LpStatus::Format,
+        Error::Invalid(_) => LpStatus::Invalid,
+        Error::Unsupported(_) => LpStatus::Unsupported,
+        Error::Limit { .. } => LpStatus::Limit,
+        Error::External { .. } => LpStatus::External,
+        Error::Internal(_) => LpStatus::Internal,
     }
 }
 

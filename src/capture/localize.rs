@@ -191,19 +191,21 @@ pub fn match_pairs(panos: &[Panorama], opts: &LocalizeOptions) -> Vec<(String, S
 
 fn run(cmd: &mut Command, what: &str, log: &Path) -> Result<()> {
     let out = cmd.output().map_err(|e| {
-        Error::Invalid(format!(
-            "could not start COLMAP for {what} ({e}); install it (apt-get install colmap) or give poses"
-        ))
+        Error::External {
+            tool: "COLMAP",
+            msg: format!(
+                "could not start it for {what} ({e}); install it (apt-get install colmap) or give poses"
+            ),
+        }
     })?;
     let mut text = out.stdout.clone();
     text.extend_from_slice(&out.stderr);
     crate::fsutil::write_atomic(log, &text)?;
     if !out.status.success() {
-        return Err(Error::Invalid(format!(
-            "COLMAP {what} failed ({}); see {}",
-            out.status,
-            log.display()
-        )));
+        return Err(Error::External {
+            tool: "COLMAP",
+            msg: format!("{what} failed ({}); see {}", out.status, log.display()),
+        });
     }
     Ok(())
 }
@@ -416,10 +418,13 @@ pub fn localize(panos: &[Panorama], work: &Path, opts: &LocalizeOptions) -> Resu
     )?;
     let model = sparse.join("0");
     if !model.is_dir() {
-        return Err(Error::Invalid(format!(
-            "COLMAP built no model (too few matches between the views); see {}",
-            work.join("mapper.log").display()
-        )));
+        return Err(Error::External {
+            tool: "COLMAP",
+            msg: format!(
+                "built no model (too few matches between the views); see {}",
+                work.join("mapper.log").display()
+            ),
+        });
     }
     let txt = work.join("model");
     std::fs::create_dir_all(&txt).map_err(|e| Error::io(&txt, e))?;

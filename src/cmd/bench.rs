@@ -74,7 +74,7 @@ pub fn run(a: BenchArgs, quiet: bool) -> Result<()> {
         let r = lumiprobe::pipeline::bench::bench_scored(&scene, &p, bench_threads, 1, true)?;
         println!(
             "{}",
-            serde_json::to_string(&r).map_err(|e| Error::Invalid(e.to_string()))?
+            serde_json::to_string(&r).map_err(|e| Error::Internal(format!("JSON: {e}")))?
         );
         return Ok(());
     }
@@ -97,12 +97,13 @@ pub fn run(a: BenchArgs, quiet: bool) -> Result<()> {
         );
         // Each point in a fresh process, so memory peaks and warm-up costs
         // are its own.
-        let exe = std::env::current_exe().map_err(|e| Error::Invalid(e.to_string()))?;
+        let exe =
+            std::env::current_exe().map_err(|e| Error::Internal(format!("own executable: {e}")))?;
         let measure = |pt: &sweep::SweepPoint| -> lumiprobe::error::Result<
             lumiprobe::pipeline::bench::BenchReport,
         > {
             let js = serde_json::to_string(&pt.params)
-                .map_err(|e| Error::Invalid(e.to_string()))?;
+                .map_err(|e| Error::Internal(format!("settings: {e}")))?;
             let out = std::process::Command::new(&exe)
                 .arg("-q")
                 .arg("bench")
@@ -136,10 +137,7 @@ pub fn run(a: BenchArgs, quiet: bool) -> Result<()> {
         })?;
         let text = sweep::to_text(&rows);
         if json {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&rows).map_err(|e| Error::Invalid(e.to_string()))?
-            );
+            println!("{}", lumiprobe::error::to_json(&rows)?);
         } else {
             print!("{text}");
         }
@@ -150,8 +148,7 @@ pub fn run(a: BenchArgs, quiet: bool) -> Result<()> {
                 sweep::to_csv(&rows).as_bytes(),
             )?;
             lumiprobe::fsutil::write_atomic(&dir.join("sweep.txt"), text.as_bytes())?;
-            let js =
-                serde_json::to_string_pretty(&rows).map_err(|e| Error::Invalid(e.to_string()))?;
+            let js = lumiprobe::error::to_json(&rows)?;
             lumiprobe::fsutil::write_atomic(&dir.join("sweep.json"), js.as_bytes())?;
             io::write_sdr(
                 &dir.join("sweep.png"),
@@ -163,10 +160,7 @@ pub fn run(a: BenchArgs, quiet: bool) -> Result<()> {
     }
     let r = lumiprobe::pipeline::bench::bench(&scene, &params, bench_threads, repeats)?;
     if json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&r).map_err(|e| Error::Invalid(e.to_string()))?
-        );
+        println!("{}", lumiprobe::error::to_json(&r)?);
     } else {
         let ws = &r.warp_stages;
         let fs = &r.flow_stages;

@@ -1,7 +1,7 @@
 //! `lumiprobe compare`: two HDR images compared.
 
 use super::args::*;
-use lumiprobe::{Error, Result};
+use lumiprobe::Result;
 use std::path::PathBuf;
 
 /// Arguments of `lumiprobe compare`.
@@ -19,9 +19,6 @@ pub fn run(a: CompareArgs, _quiet: bool) -> Result<()> {
     let pa = read_input(&a)?;
     let pb = read_input(&b)?;
     let m = lumiprobe::eval::compare_resized(&pa, &pb)?;
-    println!(
-        "{}",
-        serde_json::to_string_pretty(&m).map_err(|e| Error::Invalid(e.to_string()))?
-    );
+    println!("{}", lumiprobe::error::to_json(&m)?);
     Ok(())
 }

@@ -82,10 +82,7 @@ pub fn run(a: EvalArgs, quiet: bool) -> Result<()> {
         }
     }
     if json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?
-        );
+        println!("{}", lumiprobe::error::to_json(&ev)?);
     } else {
         println!("scene {}", ev.scene);
         print!("{}", ev.table.to_text());
@@ -110,14 +107,14 @@ pub fn run(a: EvalArgs, quiet: bool) -> Result<()> {
     };
     if let Some(dir) = report {
         std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-        let js = serde_json::to_vec_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?;
+        let js = lumiprobe::error::to_json(&ev)?.into_bytes();
         lumiprobe::fsutil::write_atomic(&dir.join("eval.json"), &js)?;
         let csv = lumiprobe::pipeline::evaluate::distance_csv(&ev);
         lumiprobe::fsutil::write_atomic(&dir.join("error_vs_distance.csv"), csv.as_bytes())?;
         let plot = lumiprobe::pipeline::evaluate::distance_plot(&ev, renders.as_ref());
         io::write_sdr(&dir.join("error_vs_distance.png"), &plot.draw(800, 500))?;
         if let Some(re) = &renders {
-            let js = serde_json::to_vec_pretty(re).map_err(|e| Error::Invalid(e.to_string()))?;
+            let js = lumiprobe::error::to_json(re)?.into_bytes();
             lumiprobe::fsutil::write_atomic(&dir.join("renders.json"), &js)?;
         }
     }

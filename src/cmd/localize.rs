@@ -149,12 +149,7 @@ pub fn run(a: LocalizeArgs, quiet: bool) -> Result<()> {
         }
         let js = serde_json::json!({"scene": scene.name, "probes": probes, "frames": frames,
             "camera": {"response": format!("{:?}", scene.response), "path_gain": scene.path_gain}});
-        lumiprobe::fsutil::write_atomic(
-            &path,
-            serde_json::to_string_pretty(&js)
-                .map_err(|e| Error::Invalid(e.to_string()))?
-                .as_bytes(),
-        )?;
+        lumiprobe::fsutil::write_atomic(&path, lumiprobe::error::to_json(&js)?.as_bytes())?;
     }
     Ok(())
 }

@@ -166,7 +166,10 @@ pub fn pano_flow(a: &[u8], b: &[u8], w: usize, h: usize, p: &FlowParams) -> Resu
     };
     let (pa, pb) = (padded(a), padded(b));
     let f = cv::dis_flow(&pa, &pb, pw, h, &p.dis()).map_err(|e| match e {
-        Error::OpenCv(m) => Error::OpenCv(format!("flow on a {w}x{h} panorama: {m}")),
+        Error::External { tool, msg } => Error::External {
+            tool,
+            msg: format!("flow on a {w}x{h} panorama: {msg}"),
+        },
         e => e,
     })?;
     let mut data = Vec::with_capacity(w * h * 2);

@@ -106,7 +106,7 @@ pub fn bench_scored(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()
-        .map_err(|e| Error::Invalid(e.to_string()))?;
+        .map_err(|e| Error::Internal(format!("thread pool: {e}")))?;
     crate::cv::set_num_threads(1);
     pool.install(|| {
         let prep_total = std::sync::Mutex::new((0.0f64, 0usize));

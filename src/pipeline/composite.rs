@@ -288,10 +288,10 @@ pub fn composite(
             report.video = Some(mp4);
         } else {
             let _ = std::fs::remove_file(&tmp);
-            return Err(Error::Invalid(format!(
-                "ffmpeg failed to encode {} ({st})",
-                mp4.display()
-            )));
+            return Err(Error::External {
+                tool: "ffmpeg",
+                msg: format!("failed to encode {} ({st})", mp4.display()),
+            });
         }
     }
     Ok(report)

@@ -371,7 +371,7 @@ pub fn export(
         }
         report.frames.push(fe);
     }
-    let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
+    let json = crate::error::to_json(&report)?.into_bytes();
     crate::fsutil::write_atomic(&out_dir.join(EXPORT_FILE), &json)?;
     Ok(report)
 }

@@ -419,7 +419,8 @@ fn up_to_date(out_dir: &Path, frame: &Frame, fp: &str) -> Option<FrameRecord> {
 /// Ids of the frames `run` would compute (outputs missing or out of date); the
 /// others it would keep.
 pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Result<Vec<String>> {
-    let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
+    let settings =
+        serde_json::to_string(params).map_err(|e| Error::Internal(format!("settings: {e}")))?;
     Ok(scene
         .frames
         .iter()
@@ -462,7 +463,8 @@ fn run_named(
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     crate::fsutil::remove_stale_temps(out_dir);
     crate::cv::set_num_threads(1);
-    let settings = serde_json::to_string(params).map_err(|e| Error::Invalid(e.to_string()))?;
+    let settings =
+        serde_json::to_string(params).map_err(|e| Error::Internal(format!("settings: {e}")))?;
     // Per frame: the probes it uses, its fingerprint, and its record when its
     // outputs are already up to date.
     let inputs: Vec<(Vec<usize>, String, Option<FrameRecord>)> = scene
@@ -569,7 +571,7 @@ fn run_named(
             repaired_pixels: repaired,
             fingerprint: fp.to_string(),
         };
-        let json = serde_json::to_vec_pretty(&rec).map_err(|e| Error::Invalid(e.to_string()))?;
+        let json = crate::error::to_json(&rec)?.into_bytes();
         crate::fsutil::write_atomic(&side, &json)?;
         Ok(rec)
     };
@@ -658,7 +660,7 @@ fn run_named(
         resumed,
         warnings,
     };
-    let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
+    let json = crate::error::to_json(&report)?.into_bytes();
     crate::fsutil::write_atomic(&out_dir.join(report_name), &json)?;
     Ok(report)
 }

@@ -85,10 +85,13 @@ fn stem(p: &Path) -> String {
 fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
     if !dir.join(".done").exists() {
         if !crate::fsutil::have_program("ffmpeg") {
-            return Err(Error::Invalid(format!(
-                "{}: extracting frames from a video needs ffmpeg (apt-get install ffmpeg)",
-                file.display()
-            )));
+            return Err(Error::External {
+                tool: "ffmpeg",
+                msg: format!(
+                    "not found; {} is a video, and extracting its frames needs it (apt-get install ffmpeg)",
+                    file.display()
+                ),
+            });
         }
         if dir.exists() {
             std::fs::remove_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -554,8 +557,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                         }))
                     })
                     .collect();
-                let text =
-                    serde_json::to_vec_pretty(&list).map_err(|e| Error::Invalid(e.to_string()))?;
+                let text = crate::error::to_json(&list)?.into_bytes();
                 crate::fsutil::write_atomic(&done, &text)?;
                 let missing: Vec<&str> = loc
                     .iter()
@@ -702,8 +704,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                             frames_used: est.frames_used,
                             log_iqr: est.log_iqr,
                         };
-                        let text = serde_json::to_vec_pretty(&g)
-                            .map_err(|e| Error::Invalid(e.to_string()))?;
+                        let text = crate::error::to_json(&g)?.into_bytes();
                         crate::fsutil::write_atomic(&file, &text)?;
                     }
                     plan.push(

@@ -151,7 +151,7 @@ impl PreparedProbe {
         });
         match r {
             Ok(f) => Ok((f.clone(), computed)),
-            Err(e) => Err(Error::OpenCv(e.clone())),
+            Err(e) => Err(Error::opencv(e.clone())),
         }
     }
 }

@@ -22,7 +22,7 @@ use std::path::Path;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Limits {
     /// Largest accepted `width * height`; larger declared sizes fail with
-    /// [`Error::TooLarge`] before any pixel buffer is allocated.
+    /// [`Error::Limit`] before any pixel buffer is allocated.
     pub max_pixels: u64,
 }
 
@@ -254,11 +254,12 @@ pub(crate) fn check_dims(
             format!("declares an empty {width}x{height} image"),
         ));
     }
-    let too_large = || Error::TooLarge {
-        path: name.to_path_buf(),
-        width,
-        height,
-        limit: limits.max_pixels,
+    let too_large = || {
+        Error::limit(
+            Some(name),
+            format!("image of {width}x{height} pixels"),
+            format!("{} pixels", limits.max_pixels),
+        )
     };
     let pixels = width.checked_mul(height).ok_or_else(too_large)?;
     if pixels > limits.max_pixels {
@@ -332,11 +333,11 @@ mod tests {
         assert!(matches!(check_dims(n, 0, 5, &l), Err(Error::Format { .. })));
         assert!(matches!(
             check_dims(n, 100_000, 100_000, &l),
-            Err(Error::TooLarge { .. })
+            Err(Error::Limit { .. })
         ));
         assert!(matches!(
             check_dims(n, u64::MAX, u64::MAX, &l),
-            Err(Error::TooLarge { .. })
+            Err(Error::Limit { .. })
         ));
         assert_eq!(check_dims(n, 4, 2, &l).unwrap(), (4, 2));
     }

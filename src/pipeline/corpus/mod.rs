@@ -446,7 +446,7 @@ pub fn run_corpus(
                 Some(f) => evaluate_apart(scene, &refs, f)?,
                 None => evaluate(scene, &refs)?,
             };
-            let js = serde_json::to_vec_pretty(&ev).map_err(|e| Error::Invalid(e.to_string()))?;
+            let js = crate::error::to_json(&ev)?.into_bytes();
             write_atomic(&out.join(&cs.name).join("eval.json"), &js)?;
             Ok(ev)
         });

@@ -2,7 +2,7 @@
 //! CSV tables, the worst-irradiance plot, and writing them all.
 
 use super::{CorpusReport, CorpusRow, CorpusTotal, Split};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::eval::summary::{Better, FlickerStat, MetricStats, RowSummary, Stat};
 use crate::eval::table::{align_columns, tail_cells, tail_header, TAIL_LEGEND};
 use crate::eval::METRIC_NAMES;
@@ -328,7 +328,7 @@ pub fn write_outputs(out: &Path, r: &CorpusReport) -> Result<()> {
     write_atomic(&out.join("corpus.csv"), to_csv(r).as_bytes())?;
     let bounds = super::bounds::to_text(r, &super::bounds::ISSUE_19);
     write_atomic(&out.join("corpus_bounds.txt"), bounds.as_bytes())?;
-    let js = serde_json::to_vec_pretty(r).map_err(|e| Error::Invalid(e.to_string()))?;
+    let js = crate::error::to_json(r)?.into_bytes();
     write_atomic(&out.join("corpus.json"), &js)?;
     let w = (160 + 90 * r.scenes.len()).clamp(640, 1600);
     crate::image::io::write_sdr(
