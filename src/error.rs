@@ -44,8 +44,13 @@ pub enum Error {
     Invalid(String),
     /// The input is valid but lumiprobe does not handle it (a pixel type, a
     /// compression, a texture format): convert it first.
-    #[error("unsupported: {0}")]
-    Unsupported(String),
+    #[error("{}{msg}", at(path))]
+    Unsupported {
+        /// The file, when the input is one.
+        path: Option<PathBuf>,
+        /// What is not supported, and what to convert it to.
+        msg: String,
+    },
     /// An external tool or library failed (OpenCV, ffmpeg, COLMAP); its own
     /// message is kept.
     #[error("{tool}: {msg}")]
@@ -92,6 +97,14 @@ impl Error {
             path: path.map(Path::to_path_buf),
             what: what.into(),
             limit: limit.into(),
+        }
+    }
+    /// Valid input that lumiprobe does not handle, in file `path` when there is
+    /// one.
+    pub fn unsupported(path: Option<&Path>, msg: impl Into<String>) -> Self {
+        Error::Unsupported {
+            path: path.map(Path::to_path_buf),
+            msg: msg.into(),
         }
     }
     /// An I/O error for `path`.

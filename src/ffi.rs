@@ -67,7 +67,7 @@ fn status_of(e: &Error) -> LpStatus {
         Error::Io { .. } => LpStatus::Io,
         Error::Format { .. } => LpStatus::Format,
         Error::Invalid(_) => LpStatus::Invalid,
-        Error::Unsupported(_) => LpStatus::Unsupported,
+        Error::Unsupported { .. } => LpStatus::Unsupported,
         Error::Limit { .. } => LpStatus::Limit,
         Error::External { .. } => LpStatus::External,
         Error::Internal(_) => LpStatus::Internal,

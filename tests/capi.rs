@@ -80,6 +80,26 @@ fn bad_calls_return_errors_naming_the_problem() {
         assert_eq!(lp_image_read(cj.as_ptr(), &mut img), LpStatus::Format);
         assert!(last_error().contains("junk.exr"));
 
+        // Each kind of failure has its own status: a limit, an unsupported
+        // variant of a format.
+        for name in ["huge_exr_100000x100000.exr", "huge_pfm_100000x100000.pfm"] {
+            let p = manifest().join("tests/corpus").join(name);
+            assert!(p.is_file(), "{} is missing", p.display());
+            let c = CString::new(p.to_str().unwrap()).unwrap();
+            assert_eq!(lp_image_read(c.as_ptr(), &mut img), LpStatus::Limit, "{name}");
+            assert!(last_error().contains(name), "{}", last_error());
+        }
+        let xyz = dir.path().join("xyz.hdr");
+        std::fs::write(
+            &xyz,
+            b"#?RADIANCE\nFORMAT=32-bit_rle_xyze\n\n-Y 1 +X 1\n\x80\x80\x80\x81",
+        )
+        .unwrap();
+        let cx = CString::new(xyz.to_str().unwrap()).unwrap();
+        assert_eq!(lp_image_read(cx.as_ptr(), &mut img), LpStatus::Unsupported);
+        assert!(last_error().contains("xyz.hdr"), "{}", last_error());
+        assert!(img.is_null());
+
         let m = CString::new("teleport").unwrap();
         let d = CString::new(dir.path().to_str().unwrap()).unwrap();
         assert_eq!(

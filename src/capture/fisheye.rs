@@ -328,14 +328,18 @@ pub fn dual_fisheye_to_equirect<I: FisheyeImage>(
         )));
     }
     let row_len = out_w.checked_mul(3).ok_or_else(|| {
-        Error::Invalid(format!(
-            "equirect output of {out_w}x{out_h} pixels is too large"
-        ))
+        Error::limit(
+            None,
+            format!("equirect output of {out_w}x{out_h} pixels"),
+            "the address space",
+        )
     })?;
     let len = row_len.checked_mul(out_h).ok_or_else(|| {
-        Error::Invalid(format!(
-            "equirect output of {out_w}x{out_h} pixels is too large"
-        ))
+        Error::limit(
+            None,
+            format!("equirect output of {out_w}x{out_h} pixels"),
+            "the address space",
+        )
     })?;
     let data = img.samples();
     let blend = cfg.effective_blend_deg().to_radians();

@@ -113,10 +113,11 @@ impl GridEnergy<'_> {
             .checked_mul(self.height)
             .filter(|&n| n <= MAX_PIXELS)
             .ok_or_else(|| {
-                Error::Invalid(format!(
-                    "graph cut: grid {}x{} exceeds {MAX_PIXELS} pixels",
-                    self.width, self.height
-                ))
+                Error::limit(
+                    None,
+                    format!("graph cut: grid of {}x{} pixels", self.width, self.height),
+                    format!("{MAX_PIXELS} pixels"),
+                )
             })?;
         if !(1..=255).contains(&self.labels) {
             return Err(Error::Invalid(format!(
@@ -573,9 +574,11 @@ pub fn max_flow(
     terminals: &[(f64, f64)],
 ) -> Result<(f64, Vec<bool>)> {
     if nodes > i32::MAX as usize {
-        return Err(Error::Invalid(format!(
-            "max flow: {nodes} nodes is too many"
-        )));
+        return Err(Error::limit(
+            None,
+            format!("max flow: {nodes} nodes"),
+            format!("{} nodes", i32::MAX),
+        ));
     }
     if terminals.len() != nodes {
         return Err(Error::Invalid(format!(

@@ -469,7 +469,11 @@ impl Model {
         for (k, m) in self.meshes.iter().enumerate() {
             let n = m.positions.len();
             if n > u32::MAX as usize {
-                return Err(Error::Invalid(format!("mesh {k} has too many vertices")));
+                return Err(Error::limit(
+                    None,
+                    format!("mesh {k}: {n} vertices"),
+                    format!("{} vertices", u32::MAX),
+                ));
             }
             let ok = |len: usize| len == 0 || len == n;
             if !ok(m.normals.len())
@@ -591,12 +595,10 @@ fn load_gltf(bytes: &[u8], base: Option<&Path>, name: &Path, limits: &LoadLimits
     while let Some((node, parent, depth)) = stack.pop() {
         visits += 1;
         if visits > limits.max_node_visits || depth > 4096 {
-            return Err(Error::format(
-                name,
-                format!(
-                    "scene graph too large or cyclic (more than {} node visits or depth 4096)",
-                    limits.max_node_visits
-                ),
+            return Err(Error::limit(
+                Some(name),
+                "the scene graph (too large, or cyclic: a node is its own ancestor)",
+                format!("{} node visits or depth 4096", limits.max_node_visits),
             ));
         }
         let local = Mat4::from_cols_array_2d(&node.transform().matrix());
@@ -606,9 +608,10 @@ fn load_gltf(bytes: &[u8], base: Option<&Path>, name: &Path, limits: &LoadLimits
                 if let Some(mut m) = ld.primitive(&prim, mesh.index(), world)? {
                     triangles = triangles.saturating_add(m.indices.len());
                     if triangles > limits.max_triangles {
-                        return Err(Error::format(
-                            name,
-                            format!("more than {} triangles (limit)", limits.max_triangles),
+                        return Err(Error::limit(
+                            Some(name),
+                            format!("{triangles} triangles"),
+                            format!("{} triangles", limits.max_triangles),
                         ));
                     }
                     match prim.material().index() {
@@ -761,9 +764,9 @@ fn read_uri(
             .ok_or_else(|| Error::format(name, format!("{what}: malformed base64 data URI")));
     }
     if uri.contains("://") {
-        return Err(Error::format(
-            name,
-            format!("{what}: unsupported URI scheme in {uri:?}"),
+        return Err(Error::unsupported(
+            Some(name),
+            format!("{what}: {uri:?} is not a file: only files beside the model and data URIs are read"),
         ));
     }
     let rel = percent_decode(uri)

@@ -176,8 +176,8 @@ fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> 
         };
         let names = channel_names(h);
         if kind == Kind::Luminance && (has(&names, "RY") || has(&names, "BY")) {
-            return Err(Error::format(
-                name,
+            return Err(Error::unsupported(
+                Some(name),
                 "luminance/chroma (Y, RY, BY) OpenEXR is not supported; convert it to RGB",
             ));
         }

@@ -161,12 +161,11 @@ fn check_jpeg_structure(b: &[u8]) -> std::result::Result<(), String> {
 fn check_encodable(path: &Path, img: &SdrImage, max_side: usize) -> Result<(u32, u32)> {
     check_nonempty(path, img.width(), img.height())?;
     if img.width() > max_side || img.height() > max_side {
-        return Err(Error::Invalid(format!(
-            "{}: {}x{} exceeds the format's largest side {max_side}",
-            path.display(),
-            img.width(),
-            img.height()
-        )));
+        return Err(Error::limit(
+            Some(path),
+            format!("an image of {}x{}", img.width(), img.height()),
+            format!("the format's largest side, {max_side}"),
+        ));
     }
     Ok((img.width() as u32, img.height() as u32))
 }

@@ -40,9 +40,10 @@ pub fn decode(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
             match v.trim_ascii() {
                 b"32-bit_rle_rgbe" => {}
                 b"32-bit_rle_xyze" => {
-                    return Err(err(
-                        "FORMAT=32-bit_rle_xyze (CIE XYZ) is not supported; only 32-bit_rle_rgbe"
-                            .into(),
+                    return Err(Error::unsupported(
+                        Some(name),
+                        "FORMAT=32-bit_rle_xyze (CIE XYZ) is not supported; convert it to \
+                         32-bit_rle_rgbe",
                     ))
                 }
                 other => {
