@@ -49,6 +49,16 @@ pub enum LpStatus {
     Internal = 8,
 }
 
+/// How `lp_probe_set_query` blends the probes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LpBlend {
+    /// The nearest probe alone.
+    Nearest = 0,
+    /// The two nearest, weighted by inverse distance.
+    InverseDistance = 1,
+}
+
 /// An HDR image owned by the library.
 pub struct LpImage {
     img: HdrImage,
@@ -235,9 +245,9 @@ pub unsafe extern "C" fn lp_image_free(img: *mut LpImage) {
     }
 }
 
-/// Projects an equirect probe onto order-2 spherical harmonics: 27 floats, 9
-/// coefficients of 3 channels each, in the order of [`crate::ibl::sh`]
-/// (l = 0; l = 1: y, z, x; l = 2: xy, yz, 3z^2 - 1, xz, x^2 - y^2).
+/// Projects an equirect probe onto order-2 spherical harmonics: `coeffs` takes
+/// 27 floats, 9 coefficients of 3 channels each, basis order 1; y, z, x; xy,
+/// yz, 3z^2 - 1, xz, x^2 - y^2.
 #[no_mangle]
 pub unsafe extern "C" fn lp_sh_project(img: *const LpImage, coeffs: *mut f32) -> LpStatus {
     guard(|| {
@@ -260,8 +270,10 @@ pub unsafe extern "C" fn lp_sh_project(img: *const LpImage, coeffs: *mut f32) ->
     })
 }
 
-/// Diffuse irradiance E (RGB, not divided by pi) at unit normal `n` (camera axes
-/// of the probe: x right, y up, -z forward) from 27 SH coefficients, clamped at 0.
+/// Diffuse irradiance E (RGB into `out_rgb[3]`, not divided by pi) at the normal
+/// `n[3]` (camera axes of the probe: x right, y up, -z forward) from the 27 SH
+/// coefficients of `coeffs`, clamped at 0. NaN or infinite coefficients are
+/// an error.
 #[no_mangle]
 pub unsafe extern "C" fn lp_sh_irradiance(
     coeffs: *const f32,
@@ -324,7 +336,7 @@ pub unsafe extern "C" fn lp_run(
 }
 
 /// Probes placed in the world (a run's per-frame outputs or a scene's own
-/// probes), queried by position; see [`crate::pipeline::probe_set`].
+/// probes), queried by position.
 pub struct LpProbeSet {
     set: crate::pipeline::probe_set::ProbeSet,
 }
@@ -386,9 +398,9 @@ pub unsafe extern "C" fn lp_probe_set_position(
 
 /// The probe for world position `xyz`, as an equirect image in world orientation
 /// (camera x = world x, camera up = world z, panorama centre = world +y), at the
-/// size of the stored probes. `blend` is `LpBlend` of the header: 0 the nearest
-/// probe, 1 the two nearest weighted by inverse distance; taken as an integer so
-/// an out-of-range value from C is an error, not undefined behaviour.
+/// size of the stored probes. `blend` is an `LpBlend` value, taken as an integer
+/// so that an out-of-range value is an error, not undefined behaviour. Free the
+/// image with `lp_image_free`.
 #[no_mangle]
 pub unsafe extern "C" fn lp_probe_set_query(
     set: *const LpProbeSet,
@@ -403,8 +415,10 @@ pub unsafe extern "C" fn lp_probe_set_query(
         }
         let p = std::slice::from_raw_parts(xyz, 3);
         let b = match blend {
-            0 => crate::pipeline::probe_set::Blend::Nearest,
-            1 => crate::pipeline::probe_set::Blend::InverseDistance2,
+            k if k == LpBlend::Nearest as u32 => crate::pipeline::probe_set::Blend::Nearest,
+            k if k == LpBlend::InverseDistance as u32 => {
+                crate::pipeline::probe_set::Blend::InverseDistance2
+            }
             k => return Err(invalid(&format!("unknown blend mode {k}"))),
         };
         let (img, _) = s.set.query(glam::Vec3::new(p[0], p[1], p[2]), b, None)?;
@@ -483,9 +497,13 @@ pub unsafe extern "C" fn lp_prefiltered_mip_info(
     })
 }
 
-/// Texels of cube face `face` (0..6: -z, +x, +z, -x, +y, -y) of specular mip
-/// `mip`: face_size * face_size * 3 floats, valid until [`lp_prefiltered_free`];
-/// NULL when an argument is out of range.
+/// Texels of cube face `face` of specular mip `mip`: face_size * face_size * 3
+/// floats, row-major, valid until `lp_prefiltered_free`; NULL when an argument
+/// is out of range. Faces 0..5 look along -z, +x, +z, -x, +y, -y (probe axes).
+/// Texel (x, y) of a face of size n looks along N + a R + b D with
+/// a = 2 (x + 0.5) / n - 1, b = 2 (y + 0.5) / n - 1 and (N, R, D) =
+/// (-z, +x, -y), (+x, +z, -y), (+z, -x, -y), (-x, -z, -y), (+y, +x, -z),
+/// (-y, +x, +z).
 #[no_mangle]
 pub unsafe extern "C" fn lp_prefiltered_face(
     p: *const LpPrefiltered,
@@ -499,7 +517,7 @@ pub unsafe extern "C" fn lp_prefiltered_face(
 }
 
 /// The 27 SH coefficients the irradiance is computed from (window applied),
-/// in the order of [`lp_sh_project`].
+/// in the order of `lp_sh_project`; pass them to `lp_sh_irradiance`.
 #[no_mangle]
 pub unsafe extern "C" fn lp_prefiltered_sh(p: *const LpPrefiltered, coeffs: *mut f32) -> LpStatus {
     guard(|| {

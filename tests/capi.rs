@@ -51,6 +51,40 @@ fn header_declares_exactly_the_exported_functions() {
     assert_eq!(h, r, "header and src/ffi.rs disagree");
 }
 
+#[test]
+fn header_is_what_cbindgen_makes_of_the_library() {
+    let root = manifest();
+    let config =
+        cbindgen::Config::from_file(root.join("cbindgen.toml")).expect("cbindgen.toml is readable");
+    let bindings = cbindgen::Builder::new()
+        .with_config(config)
+        .with_src(root.join("src/ffi.rs"))
+        .generate()
+        .expect("cbindgen reads src/ffi.rs");
+    let mut made = Vec::new();
+    bindings.write(&mut made);
+    let path = root.join("include/lumiprobe.h");
+    if std::env::var_os("LP_BLESS").is_some() {
+        std::fs::write(&path, &made).unwrap();
+    }
+    let committed = std::fs::read(&path).expect("include/lumiprobe.h exists");
+    assert!(
+        made == committed,
+        "include/lumiprobe.h is not what cbindgen makes of src/ffi.rs; \
+         regenerate it with LP_BLESS=1 cargo test --test capi header"
+    );
+    // The generated header declares what the library exports.
+    let text = String::from_utf8(made).unwrap();
+    for name in [
+        "lp_image_read",
+        "lp_probe_set_query",
+        "lp_prefiltered_shade",
+    ] {
+        assert!(text.contains(&format!("{name}(")), "{name} missing");
+    }
+    assert!(text.contains("LP_STATUS_LIMIT = 7"), "{text}");
+}
+
 fn last_error() -> String {
     let n = unsafe { lp_last_error(std::ptr::null_mut(), 0) };
     let mut buf = vec![0u8; n + 1];
@@ -86,7 +120,11 @@ fn bad_calls_return_errors_naming_the_problem() {
             let p = manifest().join("tests/corpus").join(name);
             assert!(p.is_file(), "{} is missing", p.display());
             let c = CString::new(p.to_str().unwrap()).unwrap();
-            assert_eq!(lp_image_read(c.as_ptr(), &mut img), LpStatus::Limit, "{name}");
+            assert_eq!(
+                lp_image_read(c.as_ptr(), &mut img),
+                LpStatus::Limit,
+                "{name}"
+            );
             assert!(last_error().contains(name), "{}", last_error());
         }
         let xyz = dir.path().join("xyz.hdr");

@@ -766,7 +766,9 @@ fn read_uri(
     if uri.contains("://") {
         return Err(Error::unsupported(
             Some(name),
-            format!("{what}: {uri:?} is not a file: only files beside the model and data URIs are read"),
+            format!(
+                "{what}: {uri:?} is not a file: only files beside the model and data URIs are read"
+            ),
         ));
     }
     let rel = percent_decode(uri)
