@@ -802,8 +802,9 @@ mod tests {
 
         let m = invalid_msg(dual_fisheye_to_equirect(&img, &ok, 0, 32));
         assert!(m.contains("output"), "{m}");
-        let m = invalid_msg(dual_fisheye_to_equirect(&img, &ok, usize::MAX, 2));
-        assert!(m.contains("too large"), "{m}");
+        let e = dual_fisheye_to_equirect(&img, &ok, usize::MAX, 2).unwrap_err();
+        assert!(matches!(e, Error::Limit { .. }), "{e:?}");
+        assert!(e.to_string().contains("exceeds the limit"), "{e}");
     }
 
     #[test]
