@@ -10,7 +10,7 @@
 //! memory their limits allow.
 
 use lumiprobe::capture::debevec::ResponseCurve;
-use lumiprobe::capture::exif::parse_jpeg;
+use lumiprobe::capture::exif::parse;
 use lumiprobe::capture::localize::parse_images_txt;
 use lumiprobe::image::io::{decode_hdr, decode_sdr, exr, ldr, pfm, rgbe, Limits};
 use lumiprobe::render::model::{LoadLimits, Model};
@@ -145,7 +145,7 @@ fn replay(target: &str, data: &[u8], input: &Path, scratch: &Path) -> Result<(),
         }
         "exif" => {
             let name = Path::new("fuzz.jpg");
-            expect_named(parse_jpeg(data, name), name, input)
+            expect_named(parse(data, name), name, input)
         }
         "response" => {
             let Some((&k, rest)) = data.split_first() else {

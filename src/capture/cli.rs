@@ -73,7 +73,7 @@ pub fn load_exposures(paths: &[PathBuf], times: Option<&[f64]>) -> Result<Vec<Ex
                 crate::image::io::decode_sdr(&bytes, p, &crate::image::io::Limits::default())?;
             let time_s = match times {
                 Some(t) => t[k],
-                None => exif::parse_jpeg(&bytes, p)
+                None => exif::parse(&bytes, p)
                     .ok()
                     .and_then(|e| e.exposure_time_s)
                     .ok_or_else(|| {

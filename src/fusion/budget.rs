@@ -30,14 +30,7 @@ pub(super) fn assign_placed<'v>(
             ((v * h as f32) as usize).min(h - 1),
         );
         let mut target = px.region(y * w + x);
-        let at_infinity = light.distance.is_none();
-        if target.is_none() && at_infinity && p.far_light_move_deg >= 0.0 {
-            // A source at infinity has the same direction from every
-            // viewpoint: only the frame's orientation error moves it, so it
-            // goes to the region with a pixel nearest its direction within
-            // that angle, or to none (the frame does not see it).
-            target = nearest_region_pixel(px, d, p.far_light_move_deg.to_radians());
-        } else if target.is_none() {
+        if target.is_none() {
             let dn = d.normalize_or_zero();
             let mut best = cos_max;
             for (b, r) in regions.iter().enumerate() {
@@ -121,36 +114,6 @@ pub(super) fn assign_placed<'v>(
         }
     }
     report
-}
-
-/// The region holding the clipped pixel nearest direction `d` within `reach`
-/// radians, if any.
-fn nearest_region_pixel(px: &Pixels, d: glam::Vec3, reach: f32) -> Option<usize> {
-    let (w, h) = (px.w, px.h);
-    let d = d.normalize_or_zero();
-    if d == glam::Vec3::ZERO {
-        return None;
-    }
-    let (_, v) = dir_to_uv(d);
-    let row = ((v * h as f32) as isize).clamp(0, h as isize - 1);
-    let rows = (reach / std::f32::consts::PI * h as f32).ceil() as isize + 1;
-    let (r0, r1) = (
-        (row - rows).max(0) as usize,
-        ((row + rows).min(h as isize - 1)) as usize,
-    );
-    let mut best = (None, reach.min(std::f32::consts::PI).cos());
-    for y in r0..=r1 {
-        for x in 0..w {
-            let i = y * w + x;
-            if let Some(o) = px.region(i) {
-                let c = px.dir(i).dot(d);
-                if c >= best.1 {
-                    best = (Some(o), c);
-                }
-            }
-        }
-    }
-    best.0
 }
 
 /// `power` bounded by what the region can hold (`held`); a binding bound is

@@ -127,14 +127,6 @@ pub struct FusionParams {
     /// its moves).
     #[serde(default = "default_max_move_ratio")]
     pub max_move_ratio: f64,
-    /// Angle (degrees) by which a light placed at infinity (the two probes'
-    /// rays parallel) may be moved into a clipped region: a source at infinity
-    /// keeps its direction from every viewpoint, so only the frame's
-    /// orientation error moves it, and one with no clipped pixel that near is
-    /// not seen by the frame (negative: moved like any placed light, up to
-    /// `max_angle_deg`).
-    #[serde(default = "default_far_light_move_deg")]
-    pub far_light_move_deg: f32,
     /// Hold every region's added light to the ledger's bounds ([`ledger`]): no
     /// pixel brighter than the probes measured, no region more power than the
     /// probes measured of its sources (in its fully clipped pixels, or all of
@@ -149,10 +141,6 @@ pub struct FusionParams {
 
 fn default_far_witness_m() -> f32 {
     0.4
-}
-
-fn default_far_light_move_deg() -> f32 {
-    -1.0
 }
 
 fn default_max_move_ratio() -> f64 {
@@ -208,7 +196,6 @@ impl Default for FusionParams {
             far_witness_m: default_far_witness_m(),
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),
-            far_light_move_deg: default_far_light_move_deg(),
             ledger: None,
             walk: walk::WalkParams::default(),
         }
