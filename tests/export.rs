@@ -223,3 +223,111 @@ fn three_irradiance(file: &Path, dirs: &[glam::Vec3]) -> Vec<[f64; 3]> {
     args.extend(dirs.iter().map(|d| format!("{},{},{}", d.x, d.y, d.z)));
     serde_json::from_value(client("sh_check.mjs", "three", &args)).unwrap()
 }
+
+/// The lights three.js's GLTFLoader builds from an exported lights file
+/// (`tools/js/lights_check.mjs`).
+fn three_lights(file: &Path) -> serde_json::Value {
+    client("lights_check.mjs", "three", &[file.display().to_string()])
+}
+
+#[test]
+fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, pred) = scene_with_predictions(tmp.path());
+    // Frame 1's prediction gets a sun of 1e5 in a known camera direction.
+    let s = Scene::load(&scene).unwrap();
+    let path = pred.join("frame_001.exr");
+    let mut img = read_hdr(&path).unwrap();
+    let sun_cam = glam::Vec3::new(0.4, 0.7, -0.3).normalize();
+    let (w, h) = (img.width(), img.height());
+    let sa = lumiprobe::sphere::row_solid_angles(w, h);
+    let mut sun_sa = 0.0f64;
+    for y in 0..h {
+        for x in 0..w {
+            if pixel_to_dir(x, y, w, h).dot(sun_cam) > 3f32.to_radians().cos() {
+                img.set(x, y, [1e5, 9e4, 7e4]);
+                sun_sa += sa[y] as f64;
+            }
+        }
+    }
+    assert!(sun_sa > 0.0);
+    lumiprobe::image::io::exr::write(&path, &img, &Default::default()).unwrap();
+    let out = tmp.path().join("export");
+    let o = lumiprobe(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--probes",
+        pred.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--formats",
+        "lights",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
+    let fe = &report["frames"][0];
+    let files: Vec<&str> = fe["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        files,
+        [
+            "frame_001_lights.gltf",
+            "frame_001_residual.hdr",
+            "frame_001_residual.exr"
+        ]
+    );
+    // Lights plus residual hold the probe's light, channel by channel.
+    let l = &fe["lights"];
+    for k in 0..3 {
+        let (p, kept) = (
+            l["probe"][k].as_f64().unwrap(),
+            l["kept"][k].as_f64().unwrap(),
+        );
+        assert!((kept / p - 1.0).abs() < 1e-4, "channel {k}: {kept} vs {p}");
+    }
+    let lights = l["lights"].as_array().unwrap();
+    assert_eq!(lights.len(), 1, "{lights:?}");
+    // The light is where the pose puts the sun, in y-up world axes.
+    let world = s.frames[1].pose.world_from_camera * sun_cam;
+    let y_up = glam::Vec3::new(world.x, world.z, -world.y);
+    let d: Vec<f32> = lights[0]["dir"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap() as f32)
+        .collect();
+    let d = glam::Vec3::new(d[0], d[1], d[2]);
+    assert!(d.angle_between(y_up).to_degrees() < 1.0, "{d} vs {y_up}");
+    // The sun's light: its radiance over its pixels' solid angle, less the
+    // threshold-level glow the residual keeps there (under 1%).
+    let red = lights[0]["rgb"][0].as_f64().unwrap();
+    let sun = 1e5 * sun_sa;
+    assert!(red <= sun && red > 0.99 * sun, "{red} vs {sun}");
+
+    // three.js reads one directional light shining away from the sun, with the
+    // sun's colour and light.
+    let three = three_lights(&out.join("frame_001_lights.gltf"));
+    let t = &three[0];
+    assert_eq!(three.as_array().unwrap().len(), 1, "{three}");
+    assert_eq!(t["type"], "DirectionalLight");
+    let travel = glam::Vec3::new(
+        t["travel"][0].as_f64().unwrap() as f32,
+        t["travel"][1].as_f64().unwrap() as f32,
+        t["travel"][2].as_f64().unwrap() as f32,
+    );
+    assert!(travel.angle_between(-y_up).to_degrees() < 1.0, "{travel}");
+    assert!((t["intensity"].as_f64().unwrap() / red - 1.0).abs() < 1e-6);
+    assert!((t["color"][1].as_f64().unwrap() - 0.9).abs() < 0.01, "{t}");
+
+    // The residual has no sun left.
+    let res = read_hdr(&out.join("frame_001_residual.exr")).unwrap();
+    let top = res.pixels().map(luminance).fold(0.0f32, f32::max);
+    assert!(top < 1e3, "{top}");
+}

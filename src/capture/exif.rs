@@ -168,7 +168,9 @@ mod tests {
 
     #[test]
     fn no_exif_is_not_an_error() {
-        let j = [0xff, 0xd8, 0xff, 0xe0, 0x00, 0x04, 0, 0, 0xff, 0xda, 0, 2, 0xff, 0xd9];
+        let j = [
+            0xff, 0xd8, 0xff, 0xe0, 0x00, 0x04, 0, 0, 0xff, 0xda, 0, 2, 0xff, 0xd9,
+        ];
         assert_eq!(
             parse(&j, Path::new("b.jpg")).unwrap(),
             ExifExposure::default()

@@ -53,6 +53,9 @@ enum Format {
     Ktx2,
     /// SH9 for three.js's LightProbe (JSON).
     Sh,
+    /// The dominant lights as glTF KHR_lights_punctual directional lights,
+    /// and the residual environment without them (.hdr and .exr).
+    Lights,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -107,6 +110,7 @@ pub fn run(a: ExportArgs, quiet: bool) -> Result<()> {
                 Format::Exr => ExportFormat::Exr,
                 Format::Ktx2 => ExportFormat::Ktx2,
                 Format::Sh => ExportFormat::Sh,
+                Format::Lights => ExportFormat::Lights,
             })
             .collect(),
         frames: a.frames.map(|f| f.0),

@@ -8,6 +8,7 @@ pub mod brdf_lut;
 pub mod export;
 pub mod irradiance;
 pub mod ktx2;
+pub mod lights;
 pub mod prefilter;
 pub mod sh;
 

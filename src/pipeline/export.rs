@@ -9,6 +9,8 @@
 //! | `<id>_specular.ktx2` | GGX-prefiltered cube, one mip per roughness `level / (levels - 1)` |
 //! | `<id>_irradiance.ktx2` | irradiance cube `E` (a Lambertian surface's radiance is `albedo E / pi`) |
 //! | `<id>_sh.json` | nine RGB SH coefficients of the radiance as three.js's `LightProbe.fromJSON` reads them |
+//! | `<id>_lights.gltf` | the dominant lights ([`crate::ibl::lights`]) as glTF `KHR_lights_punctual` directional lights (glTF's `+y`-up axes whatever `--up`) |
+//! | `<id>_residual.hdr`, `<id>_residual.exr` | the probe with those lights' light taken out: lights plus residual hold the probe's light, channel by channel |
 //! | `export.json` | what was written, in which axes and conventions; written last |
 //!
 //! Axes: with `y` up (glTF, three.js, Unity, Unreal after its own swap) the
@@ -23,6 +25,7 @@
 
 use crate::error::{Error, Result};
 use crate::ibl::ktx2::{encode_cube, gl_cube, peak, KtxFormat, HALF_MAX};
+use crate::ibl::lights::{integral, lights_gltf, split_lights, LightOptions, ProbeLight};
 use crate::ibl::prefilter::{cube_texel_solid_angle, mip_roughness, prefilter_specular};
 use crate::ibl::{Sh9, SpecularOptions};
 use crate::image::io::{read_hdr_repaired, ExrWriteOptions};
@@ -57,6 +60,9 @@ pub enum ExportFormat {
     Ktx2,
     /// SH9 of the radiance for three.js's `LightProbe`.
     Sh,
+    /// The dominant lights as glTF `KHR_lights_punctual`, and the residual
+    /// environment without them.
+    Lights,
 }
 
 /// Everything that controls [`export`].
@@ -76,6 +82,9 @@ pub struct ExportOptions {
     /// Texel format of the KTX 2.0 files; `None`: half floats unless a texel
     /// exceeds what they hold (a sun), then single floats.
     pub ktx_format: Option<KtxFormat>,
+    /// What counts as a light for [`ExportFormat::Lights`].
+    #[serde(default)]
+    pub lights: LightOptions,
 }
 
 impl Default for ExportOptions {
@@ -92,6 +101,7 @@ impl Default for ExportOptions {
             specular: SpecularOptions::default(),
             irradiance_face_size: 32,
             ktx_format: None,
+            lights: LightOptions::default(),
         }
     }
 }
@@ -108,6 +118,22 @@ pub struct FrameExport {
     /// Luminance power (integral over the sphere) of the probe and of the
     /// specular cube's mip 0: the check that the cube holds the probe's light.
     pub power: Option<[f64; 2]>,
+    /// The lights taken out, when written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lights: Option<LightsExport>,
+}
+
+/// The lights of one frame and the check that they keep its light.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LightsExport {
+    /// Each light: direction (the equirect files' axes), light per channel,
+    /// solid angle.
+    pub lights: Vec<ProbeLight>,
+    /// Per channel, the probe's integral over the sphere.
+    pub probe: [f64; 3],
+    /// Per channel, the lights' sum plus the residual's integral: equal to
+    /// `probe` up to rounding.
+    pub kept: [f64; 3],
 }
 
 /// What [`export`] did; also written as `export.json`.
@@ -288,6 +314,7 @@ pub fn export(
             files: Vec::new(),
             ktx_format: None,
             power: None,
+            lights: None,
         };
         for f in &opts.formats {
             match f {
@@ -316,6 +343,37 @@ pub fn export(
                     });
                     crate::fsutil::write_atomic(&out_dir.join(&name), json.to_string().as_bytes())?;
                     fe.files.push(name);
+                }
+                ExportFormat::Lights => {
+                    let (lights, residual) = split_lights(&img, &opts.lights);
+                    // The equirect files' axes are +y up whatever the target:
+                    // glTF's own.
+                    let gltf = lights_gltf(&lights, Mat3::IDENTITY);
+                    let name = format!("{}_lights.gltf", frame.id);
+                    let text = crate::error::to_json(&gltf)?;
+                    crate::fsutil::write_atomic(&out_dir.join(&name), text.as_bytes())?;
+                    fe.files.push(name);
+                    let name = format!("{}_residual.hdr", frame.id);
+                    crate::image::io::rgbe::write(&out_dir.join(&name), &residual)?;
+                    fe.files.push(name);
+                    let name = format!("{}_residual.exr", frame.id);
+                    crate::image::io::exr::write(
+                        &out_dir.join(&name),
+                        &residual,
+                        &ExrWriteOptions::default(),
+                    )?;
+                    fe.files.push(name);
+                    let mut kept = integral(&residual);
+                    for l in &lights {
+                        for k in 0..3 {
+                            kept[k] += l.rgb[k];
+                        }
+                    }
+                    fe.lights = Some(LightsExport {
+                        lights,
+                        probe: integral(&img),
+                        kept,
+                    });
                 }
                 ExportFormat::Ktx2 => {
                     let cube = prefilter_specular(&img, s);
