@@ -297,6 +297,7 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     // The light is where the pose puts the sun, in y-up world axes.
     let world = s.frames[1].pose.world_from_camera * sun_cam;
     let y_up = glam::Vec3::new(world.x, world.z, -world.y);
+    assert_eq!(lights[0]["placement"]["type"], "directional");
     let d: Vec<f32> = lights[0]["dir"]
         .as_array()
         .unwrap()
@@ -330,4 +331,44 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     let res = read_hdr(&out.join("frame_001_residual.exr")).unwrap();
     let top = res.pixels().map(luminance).fold(0.0f32, f32::max);
     assert!(top < 1e3, "{top}");
+
+    // Where the run's report places a light 2.5 units away in that direction
+    // (a fusion run's `lights`), it is a point light there, as bright at the
+    // frame.
+    let (u, v) = lumiprobe::sphere::dir_to_uv(sun_cam);
+    let report = serde_json::json!({
+        "id": "frame_001",
+        "fusion": { "lights": [
+            { "at_px": [u * w as f32, v * h as f32], "power": 1.0, "region": 0, "distance": 2.5 },
+            { "at_px": [3.0, 3.0], "power": 1.0, "region": null, "distance": 1.0 }
+        ] }
+    });
+    std::fs::write(pred.join("frame_001.json"), report.to_string()).unwrap();
+    let out2 = tmp.path().join("export_point");
+    let o = lumiprobe(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--probes",
+        pred.to_str().unwrap(),
+        "--out",
+        out2.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--formats",
+        "lights",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let three = three_lights(&out2.join("frame_001_lights.gltf"));
+    assert_eq!(three.as_array().unwrap().len(), 1, "{three}");
+    let t = &three[0];
+    assert_eq!(t["type"], "PointLight");
+    let p = s.frames[1].pose.position;
+    let want = glam::Vec3::new(p.x, p.z, -p.y) + 2.5 * y_up;
+    let at = glam::Vec3::new(
+        t["position"][0].as_f64().unwrap() as f32,
+        t["position"][1].as_f64().unwrap() as f32,
+        t["position"][2].as_f64().unwrap() as f32,
+    );
+    assert!(at.distance(want) < 0.05, "{at} vs {want}");
+    assert!((t["intensity"].as_f64().unwrap() / (red * 6.25) - 1.0).abs() < 1e-6);
 }

@@ -178,34 +178,61 @@ pub fn split_lights(img: &HdrImage, opts: &LightOptions) -> (Vec<ProbeLight>, Hd
     (lights.into_iter().map(|(_, l)| l).collect(), residual)
 }
 
-/// The lights as a glTF 2.0 document with `KHR_lights_punctual`: one
-/// directional light per light, on a node turned so that its `-z` axis points
-/// the way the light travels (from the light), colour normalised to its
-/// largest channel and intensity that channel's value. `dirs_to_gltf` takes a
-/// direction of the probe's axes to glTF's (`+y` up).
-pub fn lights_gltf(lights: &[ProbeLight], dirs_to_gltf: glam::Mat3) -> serde_json::Value {
+/// Where a light is, for a renderer.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", tag = "type")]
+pub enum Placement {
+    /// At infinity (a sun), or at an unknown distance: a directional light.
+    Directional,
+    /// At a known position (glTF axes, the scene's unit), `distance` from the
+    /// probe: a point light whose intensity gives the probe the light's
+    /// illuminance (intensity = illuminance x distance^2, candela when the
+    /// probe is in cd/m² and the unit is the metre).
+    Point { position: [f32; 3], distance: f32 },
+}
+
+/// The lights as a glTF 2.0 document with `KHR_lights_punctual`, colour
+/// normalised to each light's largest channel: a directional light on a node
+/// turned so that its `-z` axis points the way the light travels, intensity
+/// the largest channel's illuminance; or a point light on a node at its
+/// position. `dirs_to_gltf` takes a direction of the probe's axes to glTF's
+/// (`+y` up).
+pub fn lights_gltf(
+    lights: &[(ProbeLight, Placement)],
+    dirs_to_gltf: glam::Mat3,
+) -> serde_json::Value {
     let mut defs = Vec::new();
     let mut nodes = Vec::new();
-    for (k, l) in lights.iter().enumerate() {
+    for (k, (l, place)) in lights.iter().enumerate() {
         let max = l.rgb.iter().copied().fold(0.0f64, f64::max);
         let colour = if max > 0.0 {
             l.rgb.map(|v| v / max)
         } else {
             [1.0; 3]
         };
-        let travel = -(dirs_to_gltf * Vec3::from_array(l.dir)).normalize_or_zero();
-        let q = glam::Quat::from_rotation_arc(Vec3::NEG_Z, travel);
-        defs.push(serde_json::json!({
-            "name": format!("light_{k}"),
-            "type": "directional",
-            "color": colour,
-            "intensity": max,
-        }));
-        nodes.push(serde_json::json!({
-            "name": format!("light_{k}"),
-            "rotation": [q.x, q.y, q.z, q.w],
-            "extensions": { "KHR_lights_punctual": { "light": k } },
-        }));
+        let name = format!("light_{k}");
+        let ext = serde_json::json!({ "KHR_lights_punctual": { "light": k } });
+        match place {
+            Placement::Directional => {
+                let travel = -(dirs_to_gltf * Vec3::from_array(l.dir)).normalize_or_zero();
+                let q = glam::Quat::from_rotation_arc(Vec3::NEG_Z, travel);
+                defs.push(serde_json::json!({
+                    "name": name, "type": "directional", "color": colour, "intensity": max,
+                }));
+                nodes.push(serde_json::json!({
+                    "name": name, "rotation": [q.x, q.y, q.z, q.w], "extensions": ext,
+                }));
+            }
+            Placement::Point { position, distance } => {
+                let d = *distance as f64;
+                defs.push(serde_json::json!({
+                    "name": name, "type": "point", "color": colour, "intensity": max * d * d,
+                }));
+                nodes.push(serde_json::json!({
+                    "name": name, "translation": position, "extensions": ext,
+                }));
+            }
+        }
     }
     let indices: Vec<usize> = (0..nodes.len()).collect();
     serde_json::json!({
@@ -301,7 +328,24 @@ mod tests {
             rgb: [2.0, 4.0, 1.0],
             solid_angle_sr: 1e-4,
         };
-        let g = lights_gltf(&[l], glam::Mat3::IDENTITY);
+        let g = lights_gltf(
+            &[
+                (l, Placement::Directional),
+                (
+                    l,
+                    Placement::Point {
+                        position: [1.0, 2.0, 3.0],
+                        distance: 2.0,
+                    },
+                ),
+            ],
+            glam::Mat3::IDENTITY,
+        );
+        // A point light 2 units away gives the probe the same illuminance.
+        let point = &g["extensions"]["KHR_lights_punctual"]["lights"][1];
+        assert_eq!(point["type"], "point");
+        assert_eq!(point["intensity"].as_f64(), Some(16.0));
+        assert_eq!(g["nodes"][1]["translation"][2].as_f64(), Some(3.0));
         let def = &g["extensions"]["KHR_lights_punctual"]["lights"][0];
         assert_eq!(def["type"], "directional");
         assert_eq!(def["intensity"].as_f64(), Some(4.0));

@@ -25,7 +25,9 @@
 
 use crate::error::{Error, Result};
 use crate::ibl::ktx2::{encode_cube, gl_cube, peak, KtxFormat, HALF_MAX};
-use crate::ibl::lights::{integral, lights_gltf, split_lights, LightOptions, ProbeLight};
+use crate::ibl::lights::{
+    integral, lights_gltf, split_lights, LightOptions, Placement, ProbeLight,
+};
 use crate::ibl::prefilter::{cube_texel_solid_angle, mip_roughness, prefilter_specular};
 use crate::ibl::{Sh9, SpecularOptions};
 use crate::image::io::{read_hdr_repaired, ExrWriteOptions};
@@ -123,12 +125,23 @@ pub struct FrameExport {
     pub lights: Option<LightsExport>,
 }
 
+/// One exported light.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ExportedLight {
+    /// What was taken out of the probe.
+    #[serde(flatten)]
+    pub light: ProbeLight,
+    /// Where it is.
+    pub placement: Placement,
+}
+
 /// The lights of one frame and the check that they keep its light.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct LightsExport {
     /// Each light: direction (the equirect files' axes), light per channel,
-    /// solid angle.
-    pub lights: Vec<ProbeLight>,
+    /// solid angle, and where it is (a point light where the run's report
+    /// places a light at a distance in its direction).
+    pub lights: Vec<ExportedLight>,
     /// Per channel, the probe's integral over the sphere.
     pub probe: [f64; 3],
     /// Per channel, the lights' sum plus the residual's integral: equal to
@@ -201,6 +214,78 @@ fn cube_power(faces: &[HdrImage; 6]) -> f64 {
         }
     }
     s
+}
+
+/// The lights a fusion run placed at a distance for the frame whose prediction
+/// is `pred` (`w` x `h`): direction in the frame's camera axes and distance,
+/// from the run's report beside it (`<id>.json`, `fusion.lights`). None when
+/// there is no report or the method placed none.
+fn placed_lights(pred: &Path, w: usize, h: usize) -> Result<Vec<(Vec3, f32)>> {
+    let report = pred.with_extension("json");
+    if !report.is_file() {
+        return Ok(Vec::new());
+    }
+    let text = crate::fsutil::read(&report)?;
+    let v: serde_json::Value = serde_json::from_slice(&text)
+        .map_err(|e| Error::format(&report, format!("not a run's frame report: {e}")))?;
+    let mut out = Vec::new();
+    for l in v["fusion"]["lights"].as_array().into_iter().flatten() {
+        let (Some(x), Some(y), Some(d)) = (
+            l["at_px"][0].as_f64(),
+            l["at_px"][1].as_f64(),
+            l["distance"].as_f64(),
+        ) else {
+            continue;
+        };
+        if l["region"].is_null() || !(d.is_finite() && d > 0.0) || w == 0 || h == 0 {
+            continue;
+        }
+        let dir = crate::sphere::uv_to_dir(x as f32 / w as f32, y as f32 / h as f32);
+        out.push((dir, d as f32));
+    }
+    Ok(out)
+}
+
+/// Each light with where it is: a point light where a light the run placed at
+/// a distance (`placed`, camera axes) looks the same way from the frame
+/// (within the light's angular radius plus 3 degrees), else directional.
+/// Positions are in glTF's axes: the world's, `+y` up (the frame's camera
+/// axes for `Orientation::Camera`), in the poses' unit.
+fn place(
+    lights: Vec<ProbeLight>,
+    placed: &[(Vec3, f32)],
+    pose: &Pose,
+    o: Orientation,
+) -> Vec<(ProbeLight, Placement)> {
+    // The equirect files' axes are +y up for every orientation: glTF's own.
+    let cam_from_img = camera_from_image(pose, o);
+    let origin = match o {
+        Orientation::Camera => Vec3::ZERO,
+        Orientation::Y | Orientation::Z => {
+            let p = pose.position;
+            Vec3::new(p.x, p.z, -p.y)
+        }
+    };
+    lights
+        .into_iter()
+        .map(|l| {
+            let d = Vec3::from_array(l.dir);
+            let reach = (crate::sphere::disc_radius(l.solid_angle_sr) as f32) + 3f32.to_radians();
+            let near = placed
+                .iter()
+                .map(|&(c, dist)| (cam_from_img.transpose() * c, dist))
+                .filter(|(c, _)| c.angle_between(d) <= reach)
+                .min_by(|a, b| a.0.angle_between(d).total_cmp(&b.0.angle_between(d)));
+            let place = match near {
+                Some((c, dist)) => Placement::Point {
+                    position: (origin + c.normalize() * dist).to_array(),
+                    distance: dist,
+                },
+                None => Placement::Directional,
+            };
+            (l, place)
+        })
+        .collect()
 }
 
 /// The frames to export (index and prediction path) and the ids of frames with
@@ -346,6 +431,8 @@ pub fn export(
                 }
                 ExportFormat::Lights => {
                     let (lights, residual) = split_lights(&img, &opts.lights);
+                    let placed = placed_lights(&path, w, h)?;
+                    let lights = place(lights, &placed, &frame.pose, opts.orientation);
                     // The equirect files' axes are +y up whatever the target:
                     // glTF's own.
                     let gltf = lights_gltf(&lights, Mat3::IDENTITY);
@@ -364,13 +451,16 @@ pub fn export(
                     )?;
                     fe.files.push(name);
                     let mut kept = integral(&residual);
-                    for l in &lights {
+                    for (l, _) in &lights {
                         for k in 0..3 {
                             kept[k] += l.rgb[k];
                         }
                     }
                     fe.lights = Some(LightsExport {
-                        lights,
+                        lights: lights
+                            .into_iter()
+                            .map(|(light, placement)| ExportedLight { light, placement })
+                            .collect(),
                         probe: integral(&img),
                         kept,
                     });

@@ -1,8 +1,9 @@
 // Loads a lights file written by `lumiprobe export` (glTF 2.0 with
 // KHR_lights_punctual) with three.js's own GLTFLoader (npm `three`) and prints
 // the lights three.js builds from it, as JSON [{type, color: [r, g, b],
-// intensity, travel: [x, y, z]}, ...]: `travel` is the way the light shines,
-// in world axes. Used by tests/export.rs.
+// intensity, travel: [x, y, z], position: [x, y, z]}, ...]: `travel` is the
+// way a directional light shines, `position` where a point light is, in world
+// axes. Used by tests/export.rs.
 import { readFileSync } from 'node:fs';
 import { Vector3 } from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
@@ -14,15 +15,18 @@ new GLTFLoader().parse(text, '', (gltf) => {
   gltf.scene.traverse((o) => {
     if (!o.isLight) return;
     const from = new Vector3();
-    const to = new Vector3();
     o.getWorldPosition(from);
-    o.target.getWorldPosition(to);
-    const travel = to.sub(from).normalize();
+    const travel = new Vector3();
+    if (o.target) {
+      o.target.getWorldPosition(travel);
+      travel.sub(from).normalize();
+    }
     out.push({
       type: o.type,
       color: [o.color.r, o.color.g, o.color.b],
       intensity: o.intensity,
       travel: [travel.x, travel.y, travel.z],
+      position: [from.x, from.y, from.z],
     });
   });
   console.log(JSON.stringify(out));
