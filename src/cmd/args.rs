@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 #[command(next_help_heading = TUNING_WARP)]
 pub(crate) struct WarpOpts {
     /// Yaw rotations of the probe (step 90°/N).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().yaw_steps)]
     pub(crate) yaw_steps: usize,
     /// Feature detector (Debian's OpenCV has no SURF).
     #[arg(long, value_enum, default_value_t = Detector::Sift)]
@@ -35,19 +35,19 @@ pub(crate) struct WarpOpts {
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().flann_checks)]
     pub(crate) flann_checks: i32,
     /// Lowe ratio-test threshold.
-    #[arg(long, value_parser = parse_finite, default_value_t = 0.7)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::warp::WarpParams::default().ratio)]
     pub(crate) ratio: f32,
     /// Robust homography estimator.
     #[arg(long, value_enum, default_value_t = Estimator::Ransac)]
     pub(crate) estimator: Estimator,
     /// RANSAC inlier threshold in face pixels.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().ransac_threshold)]
     pub(crate) ransac_threshold: f64,
     /// Most RANSAC iterations per candidate face.
     #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().ransac_iters)]
     pub(crate) ransac_iters: i32,
     /// Fewest inliers to trust a face's homography.
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = lumiprobe::warp::WarpParams::default().min_inliers)]
     pub(crate) min_inliers: usize,
     /// Which probe faces a frame face is matched with.
     #[arg(long, value_enum, default_value_t = CandidateMode::Pose)]

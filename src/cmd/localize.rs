@@ -17,13 +17,13 @@ pub struct LocalizeArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Pinhole views per panorama.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = lumiprobe::capture::localize::LocalizeOptions::default().views)]
     pub views: usize,
     /// View size in pixels.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = lumiprobe::capture::localize::LocalizeOptions::default().view_size)]
     pub view_size: usize,
     /// Field of view of each view, degrees.
-    #[arg(long, value_parser = parse_finite, default_value_t = 120.0)]
+    #[arg(long, value_parser = parse_finite, default_value_t = lumiprobe::capture::localize::LocalizeOptions::default().fov_deg)]
     pub fov: f32,
     /// Read the COLMAP model already in WORK instead of running COLMAP.
     #[arg(long)]

@@ -27,12 +27,12 @@ pub mod tonemap;
 #[derive(clap::Args, Clone, Copy)]
 pub struct CubeArgs {
     /// Specular face size of mip 0.
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = lumiprobe::ibl::SpecularOptions::default().face_size)]
     pub face_size: usize,
     /// Specular mips (roughness i / (mips - 1)).
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = lumiprobe::ibl::SpecularOptions::default().mip_count)]
     pub mips: usize,
     /// GGX samples per texel.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = lumiprobe::ibl::SpecularOptions::default().samples)]
     pub samples: usize,
 }
