@@ -230,6 +230,24 @@ fn three_lights(file: &Path) -> serde_json::Value {
     client("lights_check.mjs", "three", &[file.display().to_string()])
 }
 
+/// `lumiprobe export --formats lights` of frame 1 of `scene`'s predictions in
+/// `pred` into `out`.
+fn export_lights(scene: &Path, pred: &Path, out: &Path) {
+    let o = lumiprobe(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--probes",
+        pred.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--formats",
+        "lights",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 #[test]
 fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     let tmp = tempfile::tempdir().unwrap();
@@ -253,19 +271,7 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     assert!(sun_sa > 0.0);
     lumiprobe::image::io::exr::write(&path, &img, &Default::default()).unwrap();
     let out = tmp.path().join("export");
-    let o = lumiprobe(&[
-        "export",
-        scene.to_str().unwrap(),
-        "--probes",
-        pred.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "1",
-        "--formats",
-        "lights",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    export_lights(&scene, &pred, &out);
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
     let fe = &report["frames"][0];
@@ -345,19 +351,7 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     });
     std::fs::write(pred.join("frame_001.json"), report.to_string()).unwrap();
     let out2 = tmp.path().join("export_point");
-    let o = lumiprobe(&[
-        "export",
-        scene.to_str().unwrap(),
-        "--probes",
-        pred.to_str().unwrap(),
-        "--out",
-        out2.to_str().unwrap(),
-        "--frames",
-        "1",
-        "--formats",
-        "lights",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    export_lights(&scene, &pred, &out2);
     let three = three_lights(&out2.join("frame_001_lights.gltf"));
     assert_eq!(three.as_array().unwrap().len(), 1, "{three}");
     let t = &three[0];
