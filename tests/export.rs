@@ -93,23 +93,12 @@ fn export_writes_cubes_a_real_client_reads_with_the_light_where_the_world_has_it
     let tmp = tempfile::tempdir().unwrap();
     let (scene, pred) = scene_with_predictions(tmp.path());
     let out = tmp.path().join("export");
-    let o = lumiprobe(&[
-        "export",
-        scene.to_str().unwrap(),
-        "--probes",
-        pred.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "1",
-        "--face-size",
-        "32",
-        "--mips",
-        "4",
-        "--samples",
-        "64",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    export_frame_1(
+        &scene,
+        &pred,
+        &out,
+        &["--face-size", "32", "--mips", "4", "--samples", "64"],
+    );
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
     assert_eq!(report["orientation"], "y");
@@ -230,10 +219,10 @@ fn three_lights(file: &Path) -> serde_json::Value {
     client("lights_check.mjs", "three", &[file.display().to_string()])
 }
 
-/// `lumiprobe export --formats lights` of frame 1 of `scene`'s predictions in
-/// `pred` into `out`.
-fn export_lights(scene: &Path, pred: &Path, out: &Path) {
-    let o = lumiprobe(&[
+/// `lumiprobe export` of frame 1 of `scene`'s predictions in `pred` into
+/// `out`, with `extra` arguments; asserts that it succeeds.
+fn export_frame_1(scene: &Path, pred: &Path, out: &Path, extra: &[&str]) {
+    let mut args = vec![
         "export",
         scene.to_str().unwrap(),
         "--probes",
@@ -242,10 +231,15 @@ fn export_lights(scene: &Path, pred: &Path, out: &Path) {
         out.to_str().unwrap(),
         "--frames",
         "1",
-        "--formats",
-        "lights",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = lumiprobe(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The lights export of frame 1 ([`export_frame_1`]).
+fn export_lights(scene: &Path, pred: &Path, out: &Path) {
+    export_frame_1(scene, pred, out, &["--formats", "lights"]);
 }
 
 #[test]
