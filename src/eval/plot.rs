@@ -14,6 +14,8 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Connect the points in x order (a front or a curve) instead of dots only.
     pub line: bool,
+    /// A label beside each point (empty: none), in the series' colour.
+    pub labels: Vec<String>,
 }
 
 /// A scatter plot.
@@ -331,6 +333,13 @@ impl Plot {
                     }
                 }
             }
+            // Labels, above right of their points (in the points' own order:
+            // a line's sorting above does not apply).
+            for (&(x, y), label) in s.points.iter().zip(&s.labels) {
+                if keep(&(x, y)) && !label.is_empty() {
+                    cv.text(px(fx(x)) + 4, py(fy(y)) - 10, label, c);
+                }
+            }
             // Legend, top right.
             let ly = t + 4 + 11 * k as i64;
             let lx = r - 6 * s.name.len() as i64 - 16;
@@ -372,6 +381,7 @@ mod tests {
                 name: "flow".into(),
                 points: vec![(0.3, 20.0), (1.5, 30.0), (f64::NAN, 1.0)],
                 line: false,
+                labels: Vec::new(),
             }],
         };
         let img = p.draw(400, 300);
@@ -403,6 +413,7 @@ mod tests {
                 // A non-positive y cannot be drawn on a log axis and is skipped.
                 points: vec![(0.0, 0.01), (1.0, 0.5), (2.0, 0.0)],
                 line: false,
+                labels: Vec::new(),
             }],
         };
         let img = p.draw(400, 300);
@@ -422,5 +433,15 @@ mod tests {
         };
         // Two dots of 21 pixels and the legend's 25 against one dot and the legend.
         assert!(n > blue(&one.draw(400, 300)) + 15, "{n}");
+        // Labels are drawn beside their points, in the series' colour.
+        let labelled = Plot {
+            series: vec![Series {
+                labels: vec!["12".into(), "7".into(), "3".into()],
+                ..p.series[0].clone()
+            }],
+            ..p.clone()
+        };
+        let m = blue(&labelled.draw(400, 300));
+        assert!(m > n + 20, "{m} vs {n}");
     }
 }

@@ -359,6 +359,7 @@ pub fn distance_plot(
         for (k, (label, _)) in first.scores.iter().enumerate() {
             series.push(Series {
                 name: label.trim_start_matches("baseline:").to_string(),
+                labels: Vec::new(),
                 points: ev
                     .frames
                     .iter()
@@ -388,6 +389,7 @@ pub fn distance_plot(
             }
             series.push(Series {
                 name: format!("{} render", l.trim_start_matches("baseline:")),
+                labels: Vec::new(),
                 points: frames.iter().map(|f| (f.1, f.2 / f.3 as f64)).collect(),
                 line: true,
             });

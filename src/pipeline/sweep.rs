@@ -333,16 +333,28 @@ pub fn to_csv(rows: &[SweepRow]) -> String {
     s
 }
 
-/// The rows as an aligned text table, Pareto rows marked `*`, the base `(base)`.
+/// The rows as an aligned text table, numbered as the plot labels its points,
+/// Pareto rows marked `*`, the base `(base)`.
 pub fn to_text(rows: &[SweepRow]) -> String {
     let mut s = format!(
-        "{:<14} {:<22} {:>10} {:>10} {:>8} {:>8} {:>8} {:>8} {:>7} {:>7}\n",
-        "setting", "value", "ms/frame", "ms/probe", "MiB", "PSNR", "logRMSE", "irr", "dir", "front"
+        "{:>3} {:<14} {:<22} {:>10} {:>10} {:>8} {:>8} {:>8} {:>8} {:>7} {:>7}\n",
+        "#",
+        "setting",
+        "value",
+        "ms/frame",
+        "ms/probe",
+        "MiB",
+        "PSNR",
+        "logRMSE",
+        "irr",
+        "dir",
+        "front"
     );
-    for r in rows {
+    for (k, r) in rows.iter().enumerate() {
         let q = &r.quality;
         s += &format!(
-            "{:<14} {:<22} {:>10.1} {:>10.1} {:>8} {:>8.2} {:>8.4} {:>8.3} {:>7.2} {:>7}\n",
+            "{:>3} {:<14} {:<22} {:>10.1} {:>10.1} {:>8} {:>8.2} {:>8.4} {:>8.3} {:>7.2} {:>7}\n",
+            k + 1,
             r.axis,
             r.value,
             r.ms_per_frame,
@@ -369,17 +381,28 @@ pub fn to_text(rows: &[SweepRow]) -> String {
 /// Pareto front as a line, the base setting on its own.
 pub fn plot(rows: &[SweepRow], scene: &str) -> Plot {
     let mut series = Vec::new();
+    // Each point labelled with its row's number in the table (`to_text`'s
+    // first column).
+    let numbered = |keep: &dyn Fn(&SweepRow) -> bool| -> (Vec<(f64, f64)>, Vec<String>) {
+        rows.iter()
+            .enumerate()
+            .filter(|(_, r)| keep(r))
+            .map(|(k, r)| {
+                (
+                    (r.ms_per_frame, r.quality.log_lum_rmse),
+                    (k + 1).to_string(),
+                )
+            })
+            .unzip()
+    };
     for m in [Method::Warp, Method::Flow, Method::Hybrid, Method::Fusion] {
-        let pts: Vec<(f64, f64)> = rows
-            .iter()
-            .filter(|r| r.method == m && !r.base)
-            .map(|r| (r.ms_per_frame, r.quality.log_lum_rmse))
-            .collect();
+        let (pts, labels) = numbered(&|r: &SweepRow| r.method == m && !r.base);
         if !pts.is_empty() {
             series.push(Series {
                 name: method_name(m).into(),
                 points: pts,
                 line: false,
+                labels,
             });
         }
     }
@@ -393,15 +416,14 @@ pub fn plot(rows: &[SweepRow], scene: &str) -> Plot {
         name: "pareto front".into(),
         points: front,
         line: true,
+        labels: Vec::new(),
     });
+    let (points, labels) = numbered(&|r: &SweepRow| r.base);
     series.push(Series {
         name: "base (defaults)".into(),
-        points: rows
-            .iter()
-            .filter(|r| r.base)
-            .map(|r| (r.ms_per_frame, r.quality.log_lum_rmse))
-            .collect(),
+        points,
         line: false,
+        labels,
     });
     Plot {
         title: format!("{scene}: error against run time"),

@@ -295,6 +295,7 @@ pub fn worst_irradiance_plot(r: &CorpusReport) -> crate::eval::plot::Plot {
         .enumerate()
         .map(|(k, label)| Series {
             name: label.trim_start_matches("baseline:").to_string(),
+            labels: Vec::new(),
             points: r
                 .rows
                 .iter()
