@@ -149,6 +149,39 @@ fn corpus_rows_and_totals_match_eval_and_a_rerun_resumes() {
         ])))
         .unwrap();
         let eval_rows = ev["table"]["rows"].as_array().unwrap();
+        // The one-page report: the table's rows, the plot, and a contact
+        // sheet of the truth and both predictions per frame, as PNGs that
+        // exist and are not blank.
+        let rep = out.join(format!("report_{scene}"));
+        ok(&lumiprobe(&[
+            "eval",
+            scene_dir.to_str().unwrap(),
+            "--pred",
+            &warp,
+            "--pred",
+            &fusion,
+            "--report",
+            rep.to_str().unwrap(),
+        ]));
+        let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
+        for label in ["warp", "fusion", "baseline:sdr", "error_vs_distance.png"] {
+            assert!(html.contains(label), "{label} missing from report.html");
+        }
+        assert!(rep.join("error_vs_distance.png").is_file());
+        let thumbs: Vec<&str> = html
+            .split("src=\"contact/")
+            .skip(1)
+            .map(|t| t.split('"').next().unwrap())
+            .collect();
+        assert_eq!(thumbs.len(), 4 * 3, "4 frames x (truth, warp, fusion)");
+        for t in &thumbs {
+            let img = lumiprobe::image::io::read_sdr(&rep.join("contact").join(t)).unwrap();
+            let (lo, hi) = img
+                .data()
+                .iter()
+                .fold((255u8, 0u8), |(a, b), &v| (a.min(v), b.max(v)));
+            assert!(hi > lo + 20, "{t} is blank");
+        }
         for label in LABELS {
             let row = rows
                 .iter()

@@ -32,8 +32,9 @@ pub struct EvalArgs {
     /// Render size in pixels with `--models`.
     #[arg(long, default_value_t = 256)]
     pub render_size: usize,
-    /// Folder for the report: eval.json, error_vs_distance.csv and .png, and
-    /// renders.json with `--models`.
+    /// Folder for the report: report.html (the tables, the plot and a contact
+    /// sheet of tone-mapped probes against the truth), eval.json,
+    /// error_vs_distance.csv and .png, and renders.json with `--models`.
     #[arg(long)]
     pub report: Option<PathBuf>,
 }
@@ -117,6 +118,7 @@ pub fn run(a: EvalArgs, quiet: bool) -> Result<()> {
             let js = lumiprobe::error::to_json(re)?.into_bytes();
             lumiprobe::fsutil::write_atomic(&dir.join("renders.json"), &js)?;
         }
+        lumiprobe::pipeline::report_html::write_report(&dir, &scene, &ev, &refs)?;
     }
     Ok(())
 }

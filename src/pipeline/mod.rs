@@ -11,6 +11,7 @@ pub mod export;
 pub mod plan;
 pub mod probe_set;
 pub mod render_eval;
+pub mod report_html;
 pub mod sweep;
 mod walk;
 
