@@ -548,3 +548,58 @@ fn a_witness_from_codes_equals_the_witness_from_radiance() {
     }
     assert!(open > 0 && open < seen, "{open} of {seen} unclipped");
 }
+
+mod witness_property {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// Whatever the direction and radiance of a probe's bright sample and
+        /// wherever the neighbours stand: with no witness it is a far source;
+        /// when every witness measured its direction unclipped it is refused;
+        /// when one witness saw it clipped it is kept.
+        #[test]
+        fn a_far_source_stands_or_falls_with_its_witnesses(
+            az in -3.1f32..3.1,
+            el in -1.2f32..1.2,
+            radiance in 10.0f32..1e5,
+            dx in -0.3f32..0.3,
+            dy in -0.3f32..0.3,
+        ) {
+            let (w, h) = (64, 32);
+            let src = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+            let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+            let bright = |pose: &Pose, x: usize, y: usize| {
+                (pose.world_from_camera * pixel_to_dir(x, y, w, h)).dot(src) > 0.995
+            };
+            let img = HdrImage::from_fn(w, h, |x, y| {
+                if bright(&probe, x, y) { [radiance; 3] } else { [0.5; 3] }
+            });
+            let frame = upright(Vec3::new(dx, dy, 1.5));
+            let neighbour = |ox: f32, clipped: bool| {
+                let pose = upright(Vec3::new(dx + ox, dy, 1.5));
+                let img = HdrImage::from_fn(w, h, |x, y| {
+                    if clipped && bright(&pose, x, y) { [1.0; 3] } else { [0.5; 3] }
+                });
+                Witness::new(&img, 1.0, pose)
+            };
+            let look = |witnesses: &[Witness]| {
+                let view = SkyView {
+                    probes: vec![(&img, &probe)],
+                    frame,
+                    floor: 1.0,
+                    near: Vec::new(),
+                    witnesses,
+                };
+                view.radiance(frame.world_from_camera.transpose() * src)
+            };
+            let alone = look(&[]);
+            prop_assert!(alone.is_some_and(|c| c[1] > 0.5 * radiance), "{alone:?}");
+            let refused = look(&[neighbour(-0.15, false), neighbour(0.15, false)]);
+            prop_assert_eq!(refused, None);
+            let kept = look(&[neighbour(-0.15, false), neighbour(0.15, true)]);
+            prop_assert!(kept.is_some_and(|c| c[1] > 0.5 * radiance), "{kept:?}");
+        }
+    }
+}
