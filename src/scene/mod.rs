@@ -315,6 +315,14 @@ impl Scene {
                 1.0
             }
         };
+        // A walk's frames come from one camera: the first one's Photo Sphere
+        // metadata speaks for them.
+        if let Some(n) = frames
+            .first()
+            .and_then(|f| crate::image::io::gpano::note(&f.sdr))
+        {
+            warnings.push(n);
+        }
         Ok(Scene {
             root: root.to_path_buf(),
             name: raw.scene.unwrap_or_else(|| {

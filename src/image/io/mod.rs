@@ -7,6 +7,7 @@
 //! (temporary file + rename, see [`crate::fsutil`]).
 
 pub mod exr;
+pub mod gpano;
 pub mod ldr;
 pub mod pfm;
 pub mod rgbe;
