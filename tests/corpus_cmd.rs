@@ -138,31 +138,20 @@ fn corpus_rows_and_totals_match_eval_and_a_rerun_resumes() {
         let scene_dir = root.join("scenes").join(scene);
         let warp = format!("warp={}", out.join(scene).join("warp").display());
         let fusion = format!("fusion={}", out.join(scene).join("fusion").display());
-        let ev: Value = serde_json::from_str(&ok(&lumiprobe(&[
-            "eval",
-            scene_dir.to_str().unwrap(),
-            "--pred",
-            &warp,
-            "--pred",
-            &fusion,
-            "--json",
-        ])))
-        .unwrap();
+        // `eval` of both outputs, with `extra` arguments.
+        let eval = |extra: &[&str]| {
+            let mut args = vec!["eval", scene_dir.to_str().unwrap(), "--pred", &warp];
+            args.extend_from_slice(&["--pred", &fusion]);
+            args.extend_from_slice(extra);
+            ok(&lumiprobe(&args))
+        };
+        let ev: Value = serde_json::from_str(&eval(&["--json"])).unwrap();
         let eval_rows = ev["table"]["rows"].as_array().unwrap();
         // The one-page report: the table's rows, the plot, and a contact
         // sheet of the truth and both predictions per frame, as PNGs that
         // exist and are not blank.
         let rep = out.join(format!("report_{scene}"));
-        ok(&lumiprobe(&[
-            "eval",
-            scene_dir.to_str().unwrap(),
-            "--pred",
-            &warp,
-            "--pred",
-            &fusion,
-            "--report",
-            rep.to_str().unwrap(),
-        ]));
+        eval(&["--report", rep.to_str().unwrap()]);
         let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
         for label in ["warp", "fusion", "baseline:sdr", "error_vs_distance.png"] {
             assert!(html.contains(label), "{label} missing from report.html");
