@@ -321,6 +321,51 @@ mod tests {
             .is_empty());
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(32))]
+        /// Whatever the sun's direction, radiance and size, and the contrast
+        /// asked for: per channel, the lights plus the residual hold the
+        /// probe's light, no residual pixel of a light is left above the
+        /// threshold, and no light is larger than allowed.
+        #[test]
+        fn lights_and_residual_keep_the_probes_light(
+            az in -3.1f32..3.1,
+            el in -1.4f32..1.4,
+            sun in 10.0f32..1e6,
+            cap_deg in 0.5f32..6.0,
+            contrast in 5.0f32..500.0,
+        ) {
+            let d = Vec3::new(el.cos() * az.sin(), el.sin(), -el.cos() * az.cos());
+            let (w, h) = (128, 64);
+            let img = HdrImage::from_fn(w, h, |x, y| {
+                if pixel_to_dir(x, y, w, h).dot(d) > cap_deg.to_radians().cos() {
+                    [sun, 0.8 * sun, 0.6 * sun]
+                } else {
+                    [0.5, 0.6, 0.9]
+                }
+            });
+            let opts = LightOptions { contrast, ..LightOptions::default() };
+            let (lights, residual) = split_lights(&img, &opts);
+            let (before, after) = (integral(&img), integral(&residual));
+            for k in 0..3 {
+                let sum = after[k] + lights.iter().map(|l| l.rgb[k]).sum::<f64>();
+                proptest::prop_assert!(
+                    (sum - before[k]).abs() <= 1e-4 * before[k],
+                    "channel {}: {} vs {}", k, sum, before[k]
+                );
+            }
+            for l in &lights {
+                proptest::prop_assert!(l.solid_angle_sr <= opts.max_solid_angle_sr);
+                proptest::prop_assert!(Vec3::from_array(l.dir).dot(d) > 0.99);
+            }
+            if !lights.is_empty() {
+                let top = residual.pixels().map(luminance).fold(0.0f32, f32::max);
+                let sky = luminance([0.5, 0.6, 0.9]);
+                proptest::prop_assert!(top <= contrast * sky * 1.0001, "{} > {}", top, contrast * sky);
+            }
+        }
+    }
+
     #[test]
     fn the_gltf_light_points_from_the_sun() {
         let l = ProbeLight {
