@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 need=()
-for pkg in pkg-config libopencv-dev libopencv-contrib-dev g++ colmap ffmpeg blender python3-numpy python3-opencv; do
+for pkg in pkg-config libopencv-dev libopencv-contrib-dev g++ colmap ffmpeg blender python3-numpy python3-opencv chromium; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

@@ -45,6 +45,10 @@ enum Cmd {
     /// Write a run's probes as engines load them: equirect .hdr/.exr, KTX2
     /// prefiltered cubes, SH for three.js; world-aligned (+Y or +Z up) or per camera.
     Export(cmd::export::ExportArgs),
+    /// Write a web page (three.js) to look through a run: scrub the walk, the SDR
+    /// frame, the probe with an exposure slider, a model lit by the probe and its
+    /// lights, the eval plots; `--serve` serves it on 127.0.0.1.
+    View(cmd::view::ViewArgs),
     /// The manifest's cache: `cache gc MANIFEST` removes what no run of it would
     /// read again.
     Cache(cmd::cache::CacheArgs),
@@ -136,6 +140,7 @@ fn real_main(cli: Cli) -> Result<()> {
         Cmd::Calibrate(args) => cmd::calibrate::run(args, cli.quiet)?,
         Cmd::Fisheye(args) => cmd::fisheye::run(args, cli.quiet)?,
         Cmd::Export(args) => cmd::export::run(args, cli.quiet)?,
+        Cmd::View(args) => cmd::view::run(args, cli.quiet)?,
         Cmd::Cache(args) => cmd::cache::run(args, cli.quiet)?,
         Cmd::Merge(args) => {
             lumiprobe::capture::run_merge(&args, cli.quiet)?;

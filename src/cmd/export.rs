@@ -66,10 +66,10 @@ enum Ktx {
 
 /// Frame indices from `--frames` (one value to clap, not a list of values).
 #[derive(Clone, Debug, PartialEq)]
-struct FrameList(Vec<usize>);
+pub(crate) struct FrameList(pub Vec<usize>);
 
 /// `3`, `0-9` or `0,4,8-12` as indices (at most a million).
-fn parse_frames(s: &str) -> std::result::Result<FrameList, String> {
+pub(crate) fn parse_frames(s: &str) -> std::result::Result<FrameList, String> {
     let mut out = Vec::new();
     for part in s.split(',') {
         let part = part.trim();

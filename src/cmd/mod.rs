@@ -21,6 +21,7 @@ pub mod render;
 pub mod rotate;
 pub mod run;
 pub mod tonemap;
+pub mod view;
 
 /// The specular cube's size, mips and samples, as `prefilter` and `export` take
 /// them.

@@ -13,6 +13,7 @@ pub mod probe_set;
 pub mod render_eval;
 pub mod report_html;
 pub mod sweep;
+pub mod view;
 mod walk;
 
 use crate::error::{Error, Result};

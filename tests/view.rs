@@ -1,0 +1,234 @@
+//! `lumiprobe view` end to end in a real browser: the page is written for a run,
+//! served by `lumiprobe view --serve` on 127.0.0.1 and opened in headless
+//! Chromium (Debian's `chromium`, installed by scripts/setup.sh and .ci/run;
+//! WebGL through SwiftShader). The page summarises what it shows in its
+//! `#status` element (read from the DOM Chromium dumps); its screenshots are
+//! read back as PNGs.
+
+#[path = "common/data.rs"]
+mod data;
+
+use lumiprobe::image::luminance;
+use lumiprobe::scene::Scene;
+use lumiprobe::synth::{synthesize, SynthParams};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+/// A synthetic scene whose ground truth stands in for a run's predictions.
+fn scene_with_predictions(root: &Path) -> (PathBuf, PathBuf) {
+    let dir = root.join("scene");
+    let p = SynthParams {
+        width: 128,
+        n_frames: 3,
+        n_probes: 2,
+        seed: 5,
+        name: "x".into(),
+        ..Default::default()
+    };
+    synthesize(&p).write(&dir).unwrap();
+    let pred = root.join("run");
+    std::fs::create_dir_all(&pred).unwrap();
+    let scene = Scene::load(&dir).unwrap();
+    for f in &scene.frames {
+        std::fs::copy(
+            f.ground_truth.as_ref().unwrap(),
+            pred.join(format!("{}.exr", f.id)),
+        )
+        .unwrap();
+    }
+    (dir, pred)
+}
+
+/// The server, stopped when dropped.
+struct Served(Child);
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `lumiprobe view ARGS --serve --port 0` and returns it with the
+/// address it prints.
+fn serve(args: &[&str]) -> (Served, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(args)
+        .args(["--serve", "--port", "0", "-q"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let served = Served(child);
+    assert!(
+        line.starts_with("http://127.0.0.1:"),
+        "no address printed: {line:?}"
+    );
+    (served, line.trim().to_string())
+}
+
+/// Headless Chromium with WebGL on the CPU; fails with what to install when it
+/// is missing.
+fn chromium(args: &[String]) -> std::process::Output {
+    let out = Command::new("chromium")
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--window-size=1280,900",
+            "--virtual-time-budget=60000",
+        ])
+        .args(args)
+        .output()
+        .expect("headless Chromium is needed (Debian: apt install chromium; scripts/setup.sh and .ci/run install it)");
+    assert!(
+        out.status.success(),
+        "chromium {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// The page's `#status` JSON once it has shown frame `k`.
+fn status(url: &str, k: usize) -> serde_json::Value {
+    let out = chromium(&["--dump-dom".into(), format!("{url}#frame={k}")]);
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let start = dom
+        .find("<pre id=\"status\">")
+        .unwrap_or_else(|| panic!("no status in the page: {dom}"))
+        + "<pre id=\"status\">".len();
+    let end = start + dom[start..].find("</pre>").unwrap();
+    let text = dom[start..end]
+        .replace("&quot;", "\"")
+        .replace("&amp;", "&");
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("status {text:?}: {e}"))
+}
+
+/// The page's screenshot at frame `k`, as luminance in 0..1 per pixel.
+fn screenshot(url: &str, k: usize, dir: &Path) -> (usize, usize, Vec<f32>) {
+    let png = dir.join(format!("shot_{k}.png"));
+    chromium(&[
+        format!("--screenshot={}", png.display()),
+        format!("{url}#frame={k}"),
+    ]);
+    let img = lumiprobe::image::io::read_sdr(&png).unwrap();
+    let lum = img
+        .data()
+        .chunks_exact(3)
+        .map(|c| luminance([c[0] as f32, c[1] as f32, c[2] as f32]) / 255.0)
+        .collect();
+    (img.width(), img.height(), lum)
+}
+
+#[test]
+fn the_page_shows_each_frame_with_a_lit_model_and_scrubbing_changes_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, run) = scene_with_predictions(tmp.path());
+    let out = tmp.path().join("view");
+    let model = data::shared_file("models/MaterialSpheres.glb");
+    let args = [
+        "view",
+        scene.to_str().unwrap(),
+        "--probes",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--model",
+        model.to_str().unwrap(),
+    ];
+    let (_server, url) = serve(&args);
+    let view: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("view.json")).unwrap()).unwrap();
+    let frames = view["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 3);
+    assert_eq!(view["model"], "model.glb");
+    assert_eq!(view["three"], "vendor/", "three.js not copied: {view}");
+
+    let mut seen = Vec::new();
+    for k in [0, 2] {
+        let s = status(&url, k);
+        assert_eq!(s["ready"], true, "frame {k}: {s}");
+        assert!(s.get("error").is_none(), "frame {k}: {s}");
+        assert_eq!(s["frame"], k);
+        assert_eq!(s["id"], frames[k]["id"]);
+        assert_eq!(s["lights"], frames[k]["light_count"]);
+        assert!(
+            s["sdr_width"].as_u64().unwrap() > 0,
+            "SDR frame not shown: {s}"
+        );
+        // The model covers part of the viewport and is lit: its pixels are
+        // neither black nor all white.
+        assert!(s["model_pixels"].as_u64().unwrap() > 2000, "{s}");
+        let lit = s["model_mean"].as_f64().unwrap();
+        assert!(lit > 0.05 && lit < 0.98, "model mean {lit}: {s}");
+        let probe = s["probe_mean"].as_f64().unwrap();
+        assert!(probe > 0.02 && probe < 0.98, "probe mean {probe}: {s}");
+        seen.push(s);
+    }
+    // Scrubbing changes the frame: the probe shown and the screenshots differ.
+    assert_ne!(seen[0]["probe_mean"], seen[1]["probe_mean"]);
+    let (w, h, a) = screenshot(&url, 0, tmp.path());
+    let (w2, h2, b) = screenshot(&url, 2, tmp.path());
+    assert_eq!((w, h), (w2, h2));
+    for (k, img) in [(0, &a), (2, &b)] {
+        let mean = img.iter().sum::<f32>() / img.len() as f32;
+        let var = img.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / img.len() as f32;
+        assert!(
+            var.sqrt() > 0.05,
+            "screenshot of frame {k} is blank (sd {})",
+            var.sqrt()
+        );
+    }
+    let changed = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| (*x - *y).abs() > 0.02)
+        .count();
+    assert!(
+        changed > a.len() / 50,
+        "frames 0 and 2 look the same: {changed} of {} pixels changed",
+        a.len()
+    );
+}
+
+#[test]
+fn bad_inputs_are_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, run) = scene_with_predictions(tmp.path());
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let notes = tmp.path().join("notes.txt");
+    std::fs::write(&notes, "not a model").unwrap();
+    let run_view = |extra: &[&str], probes: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args([
+                "view",
+                scene.to_str().unwrap(),
+                "--probes",
+                probes.to_str().unwrap(),
+            ])
+            .args(["--out", tmp.path().join("v").to_str().unwrap()])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run_view(&[], &empty);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("no prediction"),
+        "{o:?}"
+    );
+    let o = run_view(&["--model", notes.to_str().unwrap()], &run);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("notes.txt") && err.contains("glTF"), "{err}");
+    let o = run_view(&["--eval", empty.to_str().unwrap()], &run);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("eval"), "{o:?}");
+}
