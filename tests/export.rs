@@ -9,34 +9,11 @@ use lumiprobe::image::io::read_hdr;
 use lumiprobe::image::luminance;
 use lumiprobe::scene::Scene;
 use lumiprobe::sphere::pixel_to_dir;
-use lumiprobe::synth::{synthesize, SynthParams};
+#[path = "common/predictions.rs"]
+mod predictions;
+use predictions::scene_with_predictions;
 use std::path::Path;
 use std::process::Command;
-
-/// A synthetic scene whose ground truth stands in for a run's predictions.
-fn scene_with_predictions(root: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
-    let dir = root.join("scene");
-    let p = SynthParams {
-        width: 128,
-        n_frames: 3,
-        n_probes: 2,
-        seed: 5,
-        name: "x".into(),
-        ..Default::default()
-    };
-    synthesize(&p).write(&dir).unwrap();
-    let pred = root.join("run");
-    std::fs::create_dir_all(&pred).unwrap();
-    let scene = Scene::load(&dir).unwrap();
-    for f in &scene.frames {
-        std::fs::copy(
-            f.ground_truth.as_ref().unwrap(),
-            pred.join(format!("{}.exr", f.id)),
-        )
-        .unwrap();
-    }
-    (dir, pred)
-}
 
 fn lumiprobe(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_lumiprobe"))

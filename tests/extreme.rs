@@ -141,6 +141,7 @@ fn scene_of(s: &SynthScene) -> Scene {
             .collect(),
         response: s.response.clone(),
         path_gain: s.path_gain,
+        probe_unit: "as given (in memory)".into(),
         warnings: Vec::new(),
     }
 }

@@ -407,3 +407,100 @@ fn exposure_times_out_of_the_files_order_are_refused_with_the_order_shown() {
         String::from_utf8_lossy(&good.stderr)
     );
 }
+
+#[path = "common/data.rs"]
+mod data;
+
+/// Kitchen as a camera gives it (bracket JPEGs of two probes, ten SDR
+/// frames, the poses), run from a manifest with the `camera` settings given.
+/// Returns the true probes' scale over the merged ones' (median luminance ratio), the
+/// run's stated unit and the plan's text.
+fn kitchen_from_brackets(root: &Path, response: &str, gain: &str) -> (f64, String, String) {
+    let k = data::shared_file("scenes/kitchen");
+    let mut text =
+        format!("name = \"kitchen\"\n[camera]\nresponse = \"{response}\"\ngain = {gain}\n");
+    for id in ["probe_00", "probe_01"] {
+        text += &format!(
+            "[[probe]]\nid = \"{id}\"\nbrackets = \"{}\"\n",
+            k.join("probes").join(id).join("wide").display()
+        );
+    }
+    text += &format!(
+        "[frames]\nfolder = \"{}\"\npattern = \"frame_00*.jpg\"\n[poses]\nfile = \"{}\"\n\
+         [output]\nfolder = \"{}\"\nmethod = \"warp\"\nsize = \"128x64\"\n",
+        k.join("path").display(),
+        k.join("poses.json").display(),
+        root.join("out").display()
+    );
+    let mf = root.join("lumiprobe.toml");
+    std::fs::write(&mf, text).unwrap();
+    let m = Manifest::load(&mf).unwrap();
+    let (scene, plan) = prepare(&m, false).unwrap();
+    let scene = scene.expect("scene");
+    let rep = run(&scene, &m.output.folder, &RunParams::default(), &|_, _| {}).unwrap();
+    assert_eq!(rep.frames.len(), 10);
+    // The merged probes against the true ones (the dataset's probe files, which
+    // the manifest does not name): the median over pixels of the luminance
+    // ratio, robust to the lamps the brackets clip.
+    let truth = lumiprobe::scene::Scene::load(&k).unwrap();
+    let mut ratios = Vec::new();
+    for p in &scene.probes {
+        let merged = lumiprobe::image::io::read_hdr(p.hdr.as_ref().unwrap()).unwrap();
+        let t = truth.probes.iter().find(|q| q.id == p.id).unwrap();
+        let want = lumiprobe::image::io::read_hdr(t.hdr.as_ref().unwrap()).unwrap();
+        assert_eq!(
+            (merged.width(), merged.height()),
+            (want.width(), want.height())
+        );
+        for (a, b) in merged
+            .data()
+            .chunks_exact(3)
+            .zip(want.data().chunks_exact(3))
+        {
+            let (la, lb) = (
+                lumiprobe::image::luminance([a[0], a[1], a[2]]),
+                lumiprobe::image::luminance([b[0], b[1], b[2]]),
+            );
+            if lb > 1e-3 && la > 0.0 {
+                ratios.push(lb as f64 / la as f64);
+            }
+        }
+    }
+    ratios.sort_by(f64::total_cmp);
+    let scale = ratios[ratios.len() / 2];
+    let plan_text = plan.to_text();
+    (scale, rep.probe_unit, plan_text)
+}
+
+#[test]
+fn bracket_jpegs_come_out_at_the_documented_cameras_scale_or_in_candela() {
+    // The documented response and gain (`camera` of poses.json): the probes are
+    // tied to the frames' unit, which is the truth's.
+    let tmp = tempfile::tempdir().unwrap();
+    let (scale, unit, plan) =
+        kitchen_from_brackets(tmp.path(), "documented", "0.33219081679437007");
+    eprintln!("documented camera: true probes over merged {scale:.4}");
+    assert!(
+        (scale - 1.0).abs() < 0.1,
+        "truth over output {scale}\n{plan}"
+    );
+    assert!(unit.contains("frames' unit"), "{unit}");
+    // Gain left to calibration: luminance from the brackets' Exif (f/2.2,
+    // ISO 100) by the meter equation. The documented camera exposes radiance
+    // E to x = 0.332 E at 1/60 s, and the meter equation reads x as
+    // 120 x 2.2² / (100 / 60) cd/m²: 115.7 cd/m² per unit of the truth.
+    let tmp = tempfile::tempdir().unwrap();
+    let (scale, unit, plan) = kitchen_from_brackets(tmp.path(), "documented", "\"auto\"");
+    assert!(
+        unit.contains("cd/m²") && unit.contains("f/2.2") && unit.contains("ISO 100"),
+        "{unit}"
+    );
+    assert!(plan.contains("cd/m²"), "{plan}");
+    let per_unit = 1.0 / scale;
+    eprintln!("Exif: {per_unit:.2} cd/m² per truth unit");
+    let want = 120.0 * 2.2 * 2.2 * 60.0 / 100.0 * 0.33219081679437007;
+    assert!(
+        (per_unit / want - 1.0).abs() < 0.1,
+        "{per_unit} cd/m² per truth unit, want {want}\n{plan}"
+    );
+}

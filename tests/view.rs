@@ -9,36 +9,12 @@
 mod data;
 
 use lumiprobe::image::luminance;
-use lumiprobe::scene::Scene;
-use lumiprobe::synth::{synthesize, SynthParams};
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+#[path = "common/predictions.rs"]
+mod predictions;
+use predictions::scene_with_predictions;
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
-
-/// A synthetic scene whose ground truth stands in for a run's predictions.
-fn scene_with_predictions(root: &Path) -> (PathBuf, PathBuf) {
-    let dir = root.join("scene");
-    let p = SynthParams {
-        width: 128,
-        n_frames: 3,
-        n_probes: 2,
-        seed: 5,
-        name: "x".into(),
-        ..Default::default()
-    };
-    synthesize(&p).write(&dir).unwrap();
-    let pred = root.join("run");
-    std::fs::create_dir_all(&pred).unwrap();
-    let scene = Scene::load(&dir).unwrap();
-    for f in &scene.frames {
-        std::fs::copy(
-            f.ground_truth.as_ref().unwrap(),
-            pred.join(format!("{}.exr", f.id)),
-        )
-        .unwrap();
-    }
-    (dir, pred)
-}
 
 /// The server, stopped when dropped.
 struct Served(Child);

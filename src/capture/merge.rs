@@ -484,3 +484,99 @@ pub fn merge(exps: &[Exposure], curve: &ResponseCurve, opts: &MergeOptions) -> R
         },
     })
 }
+
+/// Luminance (cd/m²) that exposes the sensor to its clipping level in one
+/// second at f/1 and ISO 1: ISO 12232's saturation-based speed puts the
+/// clipping exposure at `H = 78 / S` lux·s, and the camera equation gives
+/// `H = q L t / N²` with the usual lens factor `q = 0.65`, so
+/// `L = (78 / 0.65) x N² / (t S)` for a linear exposure `x` (1 at clipping).
+/// Cameras calibrate their ISO within about a third of a stop of this.
+pub const SATURATION_LUMINANCE: f64 = 78.0 / 0.65;
+
+/// How radiance merged from brackets becomes luminance in cd/m².
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AbsoluteScale {
+    /// Multiplies the merged radiance (`exp g / seconds`); `None` until the
+    /// response is known.
+    pub factor: Option<f64>,
+    /// The brackets' f-number.
+    pub f_number: f64,
+    /// The brackets' ISO.
+    pub iso: u32,
+}
+
+/// The factor taking radiance merged with `curve` from brackets shot with
+/// these Exif settings to luminance in cd/m² ([`SATURATION_LUMINANCE`]), the
+/// curve's exposure at code 254 taken as the clipping level (no factor
+/// without a curve); `None` when a bracket lacks FNumber or ISO, or the
+/// brackets differ in them (a merge assumes that only the exposure time
+/// changes).
+pub fn absolute_scale(
+    exif: &[crate::capture::exif::ExifExposure],
+    curve: Option<&ResponseCurve>,
+) -> Option<AbsoluteScale> {
+    let first = exif.first()?;
+    let (n, iso) = (first.f_number?, first.iso?);
+    let same = exif
+        .iter()
+        .all(|e| e.iso == Some(iso) && e.f_number.is_some_and(|m| (m - n).abs() <= 1e-3 * n));
+    if !same || !(n > 0.0 && n.is_finite()) || iso == 0 {
+        return None;
+    }
+    let factor = match curve {
+        Some(c) => {
+            let clip = c.g[1][254].exp();
+            let f = SATURATION_LUMINANCE * n * n / (iso as f64 * clip);
+            if !(f.is_finite() && f > 0.0) {
+                return None;
+            }
+            Some(f)
+        }
+        None => None,
+    };
+    Some(AbsoluteScale {
+        factor,
+        f_number: n,
+        iso,
+    })
+}
+
+#[cfg(test)]
+mod scale_tests {
+    use super::*;
+    use crate::capture::exif::ExifExposure;
+
+    fn shot(n: f64, iso: u32) -> ExifExposure {
+        ExifExposure {
+            exposure_time_s: Some(1.0 / 60.0),
+            f_number: Some(n),
+            iso: Some(iso),
+        }
+    }
+
+    #[test]
+    fn the_meter_equation_gives_candela_per_square_metre() {
+        // The documented response clips at exposure 1: a wall at linear 0.18
+        // in a 1/60 s, f/2.2, ISO 100 shot is 0.18 x 120 x 2.2² x 60 / 100.
+        let c = ResponseCurve::documented();
+        let a = absolute_scale(&[shot(2.2, 100), shot(2.2, 100)], Some(&c)).unwrap();
+        let merged = 0.18 * 60.0; // exp g / t
+        let l = merged * a.factor.unwrap();
+        let want = 0.18 * 120.0 * 2.2 * 2.2 * 60.0 / 100.0;
+        assert!((l / want - 1.0).abs() < 0.01, "{l} against {want}");
+        // Twice the ISO, half the luminance for the same merged value.
+        let b = absolute_scale(&[shot(2.2, 200)], Some(&c)).unwrap();
+        assert!((a.factor.unwrap() / b.factor.unwrap() - 2.0).abs() < 1e-9);
+        // Without the tags, or with brackets that differ in them: no unit.
+        let mut none = shot(2.2, 100);
+        none.iso = None;
+        assert!(absolute_scale(&[none], Some(&c)).is_none());
+        assert!(absolute_scale(&[shot(2.2, 100), shot(4.0, 100)], Some(&c)).is_none());
+        assert!(absolute_scale(&[], Some(&c)).is_none());
+        // Known settings, no curve yet: the unit without its factor.
+        assert_eq!(
+            absolute_scale(&[shot(2.2, 100)], None).unwrap().factor,
+            None
+        );
+    }
+}

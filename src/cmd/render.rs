@@ -28,9 +28,10 @@ pub struct RenderArgs {
     /// Transparent background instead of the probe.
     #[arg(long)]
     pub transparent: bool,
-    /// Exposure of the PNG in EV.
-    #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-    pub exposure: f32,
+    /// Exposure of the PNG in EV (default: the probe's log-average luminance
+    /// to middle grey, printed).
+    #[arg(long, value_parser = parse_finite, allow_hyphen_values = true)]
+    pub exposure: Option<f32>,
 }
 
 /// Runs the command (progress and notes on stderr unless `quiet`).
@@ -60,6 +61,18 @@ pub fn run(a: RenderArgs, quiet: bool) -> Result<()> {
             Background::Environment
         },
         ..Default::default()
+    };
+    let exposure = match exposure {
+        Some(ev) => ev,
+        None => {
+            let ev = lumiprobe::tonemap::auto_exposure_ev(&env_img);
+            if !quiet {
+                eprintln!(
+                    "exposure {ev:+.2} EV (auto: the probe's log-average luminance to 0.18; --exposure fixes it)"
+                );
+            }
+            ev
+        }
     };
     let r = render(&m, &env, &cam, &opts)?;
     let (a, b) = write_render(&out, &r, exposure)?;

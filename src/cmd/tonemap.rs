@@ -23,13 +23,14 @@ pub struct TonemapArgs {
     /// Operator.
     #[arg(long, value_enum, default_value_t = Operator::Reinhard05)]
     pub operator: Operator,
-    /// Exposure in EV for `exposure`.
-    #[arg(long, value_parser = parse_finite, default_value_t = 0.0, allow_hyphen_values = true)]
-    pub ev: f32,
+    /// Exposure in EV for `exposure` (default: the image's log-average
+    /// luminance to middle grey, printed).
+    #[arg(long, value_parser = parse_finite, allow_hyphen_values = true)]
+    pub ev: Option<f32>,
 }
 
 /// Runs the command (progress and notes on stderr unless `quiet`).
-pub fn run(a: TonemapArgs, _quiet: bool) -> Result<()> {
+pub fn run(a: TonemapArgs, quiet: bool) -> Result<()> {
     let TonemapArgs {
         input,
         output,
@@ -45,6 +46,13 @@ pub fn run(a: TonemapArgs, _quiet: bool) -> Result<()> {
             &img, 0.18, None, None,
         )),
         Operator::Exposure => {
+            let ev = ev.unwrap_or_else(|| {
+                let ev = lumiprobe::tonemap::auto_exposure_ev(&img);
+                if !quiet {
+                    eprintln!("exposure {ev:+.2} EV (auto: the log-average luminance to 0.18; --ev fixes it)");
+                }
+                ev
+            });
             lumiprobe::tonemap::quantize(&lumiprobe::tonemap::exposure_srgb(&img, ev))
         }
     };

@@ -180,6 +180,9 @@ pub struct FrameRecord {
 pub struct RunReport {
     /// Scene name.
     pub scene: String,
+    /// What the probes' and the outputs' radiance is measured in.
+    #[serde(default)]
+    pub probe_unit: String,
     /// Settings used.
     pub params: RunParams,
     /// One record per frame, in walk order.
@@ -657,6 +660,7 @@ fn run_named(
     }
     let report = RunReport {
         scene: scene.name.clone(),
+        probe_unit: scene.probe_unit.clone(),
         params: params.clone(),
         frames,
         resumed,

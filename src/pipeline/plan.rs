@@ -9,7 +9,9 @@
 
 use crate::capture::calibrate::{calibrate_gain, CalibrateOptions};
 use crate::capture::cli::load_exposures;
+use crate::capture::exif::{read_exposure, ExifExposure};
 use crate::capture::localize::{localize, LocalizeOptions, Panorama, PoseSource};
+use crate::capture::merge::{absolute_scale, AbsoluteScale};
 use crate::capture::{merge, recover, MergeOptions, RecoverOptions, ResponseCurve};
 use crate::error::{Error, Result};
 use crate::image::io;
@@ -178,6 +180,96 @@ struct CachedGain {
     gain: f32,
     frames_used: usize,
     log_iqr: f32,
+}
+
+/// What a gain calibration of `scene` reads, for its cache key: the probes'
+/// files and poses, the frames' files and poses.
+fn gain_inputs(scene: &Scene) -> Vec<String> {
+    let mut parts: Vec<String> = Vec::new();
+    for p in &scene.probes {
+        parts.extend(p.hdr.iter().map(|h| super::file_stamp(h)));
+        parts.push(format!("{:?}", p.pose));
+    }
+    for f in &scene.frames {
+        parts.push(super::file_stamp(&f.sdr));
+        parts.push(format!("{:?}", f.pose));
+    }
+    parts
+}
+
+/// Merged probes are in the response's own relative unit; a given gain defines
+/// the frames' (radiance = response⁻¹(code / 255) / `gain`). The probes merged
+/// from brackets are scaled into the frames' unit: by the gain calibration
+/// against them would find, over the given one (cached, like the gain). Their
+/// scaled copies replace them in `scene`.
+fn tie_probes_to_frames(
+    scene: &mut Scene,
+    m: &Manifest,
+    gain: f32,
+    curve_id: &str,
+    cache: &Path,
+    plan: &mut Plan,
+) -> Result<()> {
+    let merged: Vec<usize> = scene
+        .probes
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| {
+            m.probes
+                .iter()
+                .any(|q| q.id == p.id && q.hdr.is_none() && !q.brackets.is_empty())
+        })
+        .map(|(k, _)| k)
+        .collect();
+    let mut parts = gain_inputs(scene);
+    let opts = CalibrateOptions::default();
+    parts.push(format!("{curve_id} {opts:?} tie {gain}"));
+    let key = super::fingerprint(&parts);
+    let file = cache.join(format!("tie-{key}.json"));
+    plan.live.push(file.clone());
+    let relative = match read_gain(&file) {
+        Some(g) => g.gain,
+        None => {
+            let mut rel = scene.clone();
+            rel.path_gain = 1.0;
+            let est = calibrate_gain(&rel, &opts)?;
+            let g = CachedGain {
+                gain: est.gain,
+                frames_used: est.frames_used,
+                log_iqr: est.log_iqr,
+            };
+            let text = crate::error::to_json(&g)?.into_bytes();
+            std::fs::create_dir_all(cache).map_err(|e| Error::io(cache, e))?;
+            crate::fsutil::write_atomic(&file, &text)?;
+            est.gain
+        }
+    };
+    let factor = relative / gain;
+    for k in merged {
+        let Some(src) = scene.probes[k].hdr.clone() else {
+            continue;
+        };
+        let stem = src
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let out = cache.join("probes").join(format!("{stem}-tied-{key}.exr"));
+        plan.live.push(out.clone());
+        if !out.exists() {
+            let mut img = io::read_hdr(&src)?;
+            img.data_mut().iter_mut().for_each(|v| *v *= factor);
+            io::write_hdr(&out, &img)?;
+        }
+        scene.probes[k].hdr = Some(out);
+    }
+    plan.push(
+        "probes in the frames' unit",
+        StageState::Computed,
+        format!(
+            "merged radiance x {factor:.5} (calibrated gain {relative:.5} over the given {gain})"
+        ),
+    );
+    Ok(())
 }
 
 /// The cached gain in `file`, if it is there and sound (a damaged entry is
@@ -416,6 +508,43 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             }
         }
     };
+    // The probes' unit: luminance in cd/m² from the brackets' Exif (f-number,
+    // ISO, time) when every probe is merged from brackets that carry them and
+    // the gain is left to calibration; a given gain defines the frames' unit,
+    // which the merged probes then take (below).
+    let absolute = match m.gain {
+        GainChoice::Auto if m.probes.iter().all(|p| p.hdr.is_none()) => {
+            let scales: Vec<Option<AbsoluteScale>> = m
+                .probes
+                .iter()
+                .map(|p| {
+                    let exif: Option<Vec<ExifExposure>> =
+                        p.brackets.iter().map(|b| read_exposure(b).ok()).collect();
+                    absolute_scale(&exif?, curve.as_ref())
+                })
+                .collect();
+            match scales.first() {
+                Some(Some(a)) if scales.iter().all(|s| *s == Some(*a)) => Some(*a),
+                _ => None,
+            }
+        }
+        _ => None,
+    };
+    let probe_unit = match (absolute, m.gain) {
+        (Some(a), _) => format!(
+            "cd/m² from the brackets' Exif (f/{}, ISO {}; ISO 12232 saturation speed, lens factor 0.65)",
+            a.f_number, a.iso
+        ),
+        (None, GainChoice::Value(g)) if !bracketed.is_empty() => {
+            format!("the frames' unit (radiance = response⁻¹(code / 255) / {g})")
+        }
+        (None, _) if bracketed.is_empty() => "as given (HDR files)".to_string(),
+        (None, _) => {
+            "relative (brackets without Exif FNumber and ISO, or HDR files among the probes)"
+                .to_string()
+        }
+    };
+    plan.push("probe unit", StageState::Given, probe_unit.clone());
     // Probes.
     let mut probe_files: Vec<(String, Option<PathBuf>)> = Vec::new();
     for p in &m.probes {
@@ -430,6 +559,9 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         }
         let mut parts: Vec<String> = p.brackets.iter().map(|b| super::file_stamp(b)).collect();
         parts.push(format!("{:?} {curve_id}", p.times));
+        if let Some(f) = absolute.and_then(|a| a.factor) {
+            parts.push(format!("absolute {f}"));
+        }
         let file =
             cache
                 .join("probes")
@@ -451,11 +583,15 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             probe_files.push((p.id.clone(), None));
         } else {
             let exps = exposures(p)?;
-            let merged = merge(
+            let mut merged = merge(
                 &exps,
                 curve.as_ref().expect("checked"),
                 &MergeOptions::default(),
             )?;
+            if let Some(f) = absolute.and_then(|a| a.factor) {
+                let f = f as f32;
+                merged.image.data_mut().iter_mut().for_each(|v| *v *= f);
+            }
             io::write_hdr(&file, &merged.image)?;
             plan.push(
                 format!("merge {}", p.id),
@@ -648,6 +784,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         frames,
         response,
         path_gain: 1.0,
+        probe_unit,
         warnings: m
             .probes
             .iter()
@@ -666,19 +803,23 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
         GainChoice::Value(g) => {
             scene.path_gain = g;
             plan.push("gain", StageState::Given, format!("{g}"));
+            if !bracketed.is_empty() {
+                if m.response == ResponseChoice::Recover {
+                    scene.warnings.push(format!(
+                        "{}: camera.gain = {g} with a recovered response: a recovered curve's \
+                         scale is its own (exposure 1 at code 128), not the camera's, so the \
+                         gain does not give the frames' unit; give the camera's documented \
+                         response with its gain, or gain = \"auto\" for luminance from Exif",
+                        m.file.display()
+                    ));
+                }
+                tie_probes_to_frames(&mut scene, m, g, &curve_id, &cache, &mut plan)?;
+            }
         }
         GainChoice::Auto => {
             // Keyed by what the estimate reads: the frames, the probes, the
             // poses and the response.
-            let mut parts: Vec<String> = Vec::new();
-            for p in &scene.probes {
-                parts.extend(p.hdr.iter().map(|h| super::file_stamp(h)));
-                parts.push(format!("{:?}", p.pose));
-            }
-            for f in &scene.frames {
-                parts.push(super::file_stamp(&f.sdr));
-                parts.push(format!("{:?}", f.pose));
-            }
+            let mut parts = gain_inputs(&scene);
             let opts = CalibrateOptions::default();
             parts.push(format!("{curve_id} {opts:?}"));
             let file = cache.join(format!("gain-{}.json", super::fingerprint(&parts)));

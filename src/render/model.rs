@@ -722,24 +722,6 @@ fn decode_base64(s: &str) -> Option<Vec<u8>> {
     Some(out)
 }
 
-/// Decodes `%XX` escapes of a URI path.
-fn percent_decode(s: &str) -> Option<String> {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' {
-            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8(out).ok()
-}
-
 /// Resolves a buffer or image URI: a `data:` URI (base64) or a relative file
 /// path inside the model's folder tree. Absolute paths, other schemes and
 /// files larger than `max_bytes` are refused.
@@ -771,7 +753,7 @@ fn read_uri(
             ),
         ));
     }
-    let rel = percent_decode(uri)
+    let rel = crate::fsutil::percent_decode(uri)
         .ok_or_else(|| Error::format(name, format!("{what}: malformed URI {uri:?}")))?;
     let rel_path = Path::new(&rel);
     if rel_path.is_absolute()
@@ -1302,8 +1284,11 @@ mod tests {
         assert_eq!(decode_base64("aGVsbG8=").unwrap(), b"hello");
         assert_eq!(decode_base64("aGVsbG8").unwrap(), b"hello");
         assert!(decode_base64("a*b").is_none());
-        assert_eq!(percent_decode("a%20b.bin").unwrap(), "a b.bin");
-        assert!(percent_decode("a%2").is_none());
+        assert_eq!(
+            crate::fsutil::percent_decode("a%20b.bin").unwrap(),
+            "a b.bin"
+        );
+        assert!(crate::fsutil::percent_decode("a%2").is_none());
     }
 
     #[test]

@@ -102,6 +102,8 @@ pub struct Scene {
     pub response: Response,
     /// Exposure gain of the SDR frames: radiance = response⁻¹(code / 255) / gain.
     pub path_gain: f32,
+    /// What the probes' (and the frames') radiance is measured in, for reports.
+    pub probe_unit: String,
     /// Things the loader repaired or assumed, for the report.
     pub warnings: Vec<String>,
 }
@@ -334,6 +336,7 @@ impl Scene {
             frames,
             response,
             path_gain,
+            probe_unit: "as given (HDR files)".into(),
             warnings,
         })
     }

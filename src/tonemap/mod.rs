@@ -223,6 +223,19 @@ pub fn log_average_luminance(img: &HdrImage) -> f32 {
     (s / n as f64).exp() as f32
 }
 
+/// The exposure in EV that maps `img`'s log-average luminance
+/// ([`log_average_luminance`]) to middle grey (0.18): what previews, renders
+/// and the web viewer use unless an exposure is given. 0 for an image with no
+/// light (log-average under 1e-5, the floor's own scale).
+pub fn auto_exposure_ev(img: &HdrImage) -> f32 {
+    let avg = log_average_luminance(img);
+    if avg.is_finite() && avg > 1e-5 {
+        (0.18 / avg).log2()
+    } else {
+        0.0
+    }
+}
+
 /// Exposure by `2^ev`, clip to [0, 1], sRGB encode.
 pub fn exposure_srgb(img: &HdrImage, ev: f32) -> Vec<f32> {
     let s = 2f32.powf(ev);
@@ -277,6 +290,25 @@ mod tests {
 
     fn all_finite_in_unit(v: &[f32]) -> bool {
         v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x))
+    }
+
+    #[test]
+    fn auto_exposure_maps_the_log_average_to_middle_grey() {
+        let img = HdrImage::from_fn(16, 8, |_, _| [2.0, 2.0, 2.0]);
+        assert!((auto_exposure_ev(&img) - (0.09f32).log2()).abs() < 1e-4);
+        assert_eq!(auto_exposure_ev(&HdrImage::new(16, 8)), 0.0);
+        // A sun a million times the rest moves a log-average little: the
+        // exposure stays within a stop and a half of the room's.
+        let sun = HdrImage::from_fn(
+            16,
+            8,
+            |x, y| if (x, y) == (3, 3) { [1e6; 3] } else { [1.0; 3] },
+        );
+        let ev = auto_exposure_ev(&sun);
+        assert!(ev < (0.18f32).log2() && ev > (0.18f32).log2() - 1.5, "{ev}");
+        // Scale-free: ten times the light, log2(10) EV less.
+        let bright = HdrImage::from_fn(16, 8, |_, _| [20.0; 3]);
+        assert!((auto_exposure_ev(&img) - auto_exposure_ev(&bright) - 10f32.log2()).abs() < 1e-4);
     }
 
     #[test]

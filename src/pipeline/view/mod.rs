@@ -22,9 +22,7 @@ pub use serve::{serve, Server};
 use super::export::{export, ExportFormat, ExportOptions, Orientation};
 use crate::error::{Error, Result};
 use crate::image::io::read_hdr_repaired;
-use crate::image::{luminance, HdrImage};
 use crate::scene::Scene;
-use crate::sphere::row_solid_angles;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -84,7 +82,7 @@ pub struct ViewFrame {
     /// model stands there, so point lights keep their distance.
     pub position: [f32; 3],
     /// Exposure (a multiplier of the radiance) that maps the probe's
-    /// solid-angle weighted log-average luminance to 0.18.
+    /// log-average luminance to 0.18 ([`crate::tonemap::auto_exposure_ev`]).
     pub exposure: f32,
 }
 
@@ -103,34 +101,6 @@ pub struct ViewReport {
     pub three: String,
     /// Notes for the user (no local three.js, frames with no prediction).
     pub warnings: Vec<String>,
-}
-
-/// The exposure that maps `img`'s solid-angle weighted log-average luminance to
-/// middle grey (0.18); 1 for an image with no light.
-pub fn auto_exposure(img: &HdrImage) -> f32 {
-    let (w, h) = (img.width(), img.height());
-    if w == 0 || h == 0 {
-        return 1.0;
-    }
-    let sa = row_solid_angles(w, h);
-    let (mut sum, mut norm) = (0.0f64, 0.0f64);
-    for (i, c) in img.data().chunks_exact(3).enumerate() {
-        let l = luminance([c[0], c[1], c[2]]) as f64;
-        if l.is_finite() && l > 0.0 {
-            let wt = sa[i / w] as f64;
-            sum += wt * l.ln();
-            norm += wt;
-        }
-    }
-    if norm <= 0.0 {
-        return 1.0;
-    }
-    let e = 0.18 / (sum / norm).exp();
-    if e.is_finite() && e > 0.0 {
-        e as f32
-    } else {
-        1.0
-    }
 }
 
 /// three.js's npm package next to lumiprobe's sources (`tools/js`), where the
@@ -317,7 +287,7 @@ pub fn write_view(
             lights: format!("probes/{}_lights.gltf", fe.id),
             light_count: fe.lights.as_ref().map_or(0, |l| l.lights.len()),
             position: [p.x, p.z, -p.y],
-            exposure: auto_exposure(&img),
+            exposure: 2f32.powf(crate::tonemap::auto_exposure_ev(&img)),
         });
     }
     if frames.is_empty() {
@@ -404,28 +374,6 @@ fn html_escape(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn auto_exposure_maps_the_log_average_to_middle_grey() {
-        let img = HdrImage::from_fn(16, 8, |_, _| [2.0, 2.0, 2.0]);
-        assert!((auto_exposure(&img) - 0.09).abs() < 1e-4);
-        let black = HdrImage::from_fn(16, 8, |_, _| [0.0; 3]);
-        assert_eq!(auto_exposure(&black), 1.0);
-        // A sun a million times the rest moves a log-average little.
-        let sun = HdrImage::from_fn(
-            16,
-            8,
-            |x, y| {
-                if (x, y) == (3, 3) {
-                    [1e6; 3]
-                } else {
-                    [1.0; 3]
-                }
-            },
-        );
-        let e = auto_exposure(&sun);
-        assert!(e > 0.05 && e < 0.18, "{e}");
-    }
 
     #[test]
     fn model_paths_must_stay_beside_the_model() {

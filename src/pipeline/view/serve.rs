@@ -73,7 +73,7 @@ fn content_type(path: &Path) -> &'static str {
 /// it or name no file.
 fn resolve(root: &Path, target: &str) -> Option<PathBuf> {
     let path = target.split(['?', '#']).next().unwrap_or("");
-    let path = percent_decode(path)?;
+    let path = crate::fsutil::percent_decode(path)?;
     let rel = path.trim_start_matches('/');
     let rel = if rel.is_empty() || rel.ends_with('/') {
         format!("{rel}index.html")
@@ -86,25 +86,6 @@ fn resolve(root: &Path, target: &str) -> Option<PathBuf> {
     }
     let full = root.join(rel).canonicalize().ok()?;
     (full.starts_with(root) && full.is_file()).then_some(full)
-}
-
-/// `%XX` escapes decoded; `None` for a malformed one or a result that is not
-/// UTF-8.
-fn percent_decode(s: &str) -> Option<String> {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' {
-            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
-            out.push(u8::from_str_radix(hex, 16).ok()?);
-            i += 3;
-        } else {
-            out.push(b[i]);
-            i += 1;
-        }
-    }
-    String::from_utf8(out).ok()
 }
 
 fn respond(
