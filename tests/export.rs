@@ -337,3 +337,89 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     assert!(at.distance(want) < 0.05, "{at} vs {want}");
     assert!((t["intensity"].as_f64().unwrap() / (red * 6.25) - 1.0).abs() < 1e-6);
 }
+
+/// What headless Blender reads of equirect files, loaded as a world
+/// environment by `tools/blender/load_env.py`: one JSON object per file.
+fn blender_reads(files: &[&Path]) -> Vec<serde_json::Value> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/blender/load_env.py");
+    let out = Command::new("blender")
+        .args(["-b", "--factory-startup", "--python"])
+        .arg(&script)
+        .arg("--")
+        .args(files)
+        .output()
+        .expect("Blender is needed to check that it reads the exports (Debian: apt install blender; scripts/setup.sh installs it)");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.strip_prefix("LUMIPROBE "))
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn blender_loads_the_exported_equirects_as_its_world_unclamped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, run) = scene_with_predictions(tmp.path());
+    let out = tmp.path().join("out");
+    let o = lumiprobe(&[
+        "export",
+        scene.to_str().unwrap(),
+        "--probes",
+        run.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--frames",
+        "0",
+        "--formats",
+        "hdr,exr",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (hdr, exr) = (out.join("frame_000.hdr"), out.join("frame_000.exr"));
+    let seen = blender_reads(&[&hdr, &exr]);
+    assert_eq!(seen.len(), 2, "{seen:?}");
+    for (file, got, tol) in [(&hdr, &seen[0], 1e-2), (&exr, &seen[1], 1e-4)] {
+        // lumiprobe's own reading of the same file is the reference.
+        let img = read_hdr(file).unwrap();
+        assert_eq!(
+            got["size"],
+            serde_json::json!([img.width(), img.height()]),
+            "{got}"
+        );
+        assert_eq!(got["float"], true, "{got}");
+        assert_eq!(got["world_image"], true, "{got}");
+        let n = (img.width() * img.height()) as f64;
+        for c in 0..3 {
+            let mean = img.data()[c..]
+                .iter()
+                .step_by(3)
+                .map(|&v| v as f64)
+                .sum::<f64>()
+                / n;
+            let max = img.data()[c..]
+                .iter()
+                .step_by(3)
+                .fold(0f32, |a, &v| a.max(v)) as f64;
+            let (bm, bx) = (
+                got["mean"][c].as_f64().unwrap(),
+                got["max"][c].as_f64().unwrap(),
+            );
+            assert!(
+                (bm / mean - 1.0).abs() < tol,
+                "{}: channel {c} mean {bm} against {mean}",
+                file.display()
+            );
+            // Not clamped: the brightest sample (the synthetic scene's lamps are
+            // far above 1) comes through.
+            assert!(
+                max > 1.0 && (bx / max - 1.0).abs() < tol,
+                "{}: channel {c} max {bx} against {max}",
+                file.display()
+            );
+        }
+    }
+}
