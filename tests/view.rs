@@ -71,9 +71,10 @@ fn chromium(args: &[String]) -> std::process::Output {
     out
 }
 
-/// The page's `#status` JSON once it has shown frame `k`.
-fn status(url: &str, k: usize) -> serde_json::Value {
-    let out = chromium(&["--dump-dom".into(), format!("{url}#frame={k}")]);
+/// The page's `#status` JSON once it has shown frame `k` (`query`: the
+/// address's query, e.g. `?env=ktx2`, or empty).
+fn status(url: &str, query: &str, k: usize) -> serde_json::Value {
+    let out = chromium(&["--dump-dom".into(), format!("{url}{query}#frame={k}")]);
     let dom = String::from_utf8_lossy(&out.stdout);
     let start = dom
         .find("<pre id=\"status\">")
@@ -117,6 +118,7 @@ fn the_page_shows_each_frame_with_a_lit_model_and_scrubbing_changes_it() {
         out.to_str().unwrap(),
         "--model",
         model.to_str().unwrap(),
+        "--ktx2",
     ];
     let (_server, url) = serve(&args);
     let view: serde_json::Value =
@@ -128,7 +130,7 @@ fn the_page_shows_each_frame_with_a_lit_model_and_scrubbing_changes_it() {
 
     let mut seen = Vec::new();
     for k in [0, 2] {
-        let s = status(&url, k);
+        let s = status(&url, "", k);
         assert_eq!(s["ready"], true, "frame {k}: {s}");
         assert!(s.get("error").is_none(), "frame {k}: {s}");
         assert_eq!(s["frame"], k);

@@ -31,6 +31,11 @@ pub struct ViewArgs {
     /// else the page loads it from a CDN).
     #[arg(long)]
     three: Option<PathBuf>,
+    /// Also write each frame's GGX-prefiltered cube as KTX 2.0: the page can
+    /// light the model with it (read with npm ktx-parse) instead of the
+    /// equirect and the lights.
+    #[arg(long)]
+    ktx2: bool,
     /// Serve the page on 127.0.0.1 until interrupted (browsers run the page's
     /// modules only from http://).
     #[arg(long)]
@@ -50,6 +55,7 @@ pub fn run(a: ViewArgs, quiet: bool) -> Result<()> {
         eval: a.eval,
         three: a.three,
         frames: a.frames.map(|f| f.0),
+        ktx2: a.ktx2,
     };
     let rep = write_view(&scene, &a.probes, &out, &opts)?;
     for w in &rep.warnings {

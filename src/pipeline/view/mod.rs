@@ -43,6 +43,9 @@ const THREE_FILES: [&str; 7] = [
     "examples/jsm/controls/OrbitControls.js",
     "LICENSE",
 ];
+/// The npm `ktx-parse` release and module file the page reads KTX 2.0 with.
+const KTX_PARSE_VERSION: &str = "1.1.0";
+const KTX_PARSE_FILE: &str = "dist/ktx-parse.modern.js";
 /// Most files an eval folder may bring (its report, plots and thumbnails).
 const MAX_EVAL_FILES: usize = 256;
 /// Largest file copied from an eval folder or as the model.
@@ -61,6 +64,9 @@ pub struct ViewOptions {
     /// Indices into the scene's frames (walk order); `None`: every frame with a
     /// prediction.
     pub frames: Option<Vec<usize>>,
+    /// Also write each frame's GGX-prefiltered cube as KTX 2.0, which the page
+    /// can light with instead of the equirect (read with npm `ktx-parse`).
+    pub ktx2: bool,
 }
 
 /// One frame as the page shows it.
@@ -78,6 +84,9 @@ pub struct ViewFrame {
     pub lights: String,
     /// How many lights.
     pub light_count: usize,
+    /// The GGX-prefiltered specular cube (KTX 2.0), when written.
+    #[serde(default)]
+    pub specular: Option<String>,
     /// The frame's position in the page's axes (`+y` up, the poses' unit): the
     /// model stands there, so point lights keep their distance.
     pub position: [f32; 3],
@@ -250,7 +259,11 @@ pub fn write_view(
         &probes,
         &ExportOptions {
             orientation: Orientation::Y,
-            formats: vec![ExportFormat::Hdr, ExportFormat::Lights],
+            formats: if opts.ktx2 {
+                vec![ExportFormat::Hdr, ExportFormat::Lights, ExportFormat::Ktx2]
+            } else {
+                vec![ExportFormat::Hdr, ExportFormat::Lights]
+            },
             frames: opts.frames.clone(),
             ..ExportOptions::default()
         },
@@ -286,6 +299,7 @@ pub fn write_view(
             residual: format!("probes/{}_residual.hdr", fe.id),
             lights: format!("probes/{}_lights.gltf", fe.id),
             light_count: fe.lights.as_ref().map_or(0, |l| l.lights.len()),
+            specular: opts.ktx2.then(|| format!("probes/{}_specular.ktx2", fe.id)),
             position: [p.x, p.z, -p.y],
             exposure: 2f32.powf(crate::tonemap::auto_exposure_ev(&img)),
         });
@@ -323,6 +337,20 @@ pub fn write_view(
                     .unwrap_or_else(|| f.replace("build/", ""));
                 copy_file(&src, &out_dir.join("vendor").join(rel))?;
             }
+            // ktx-parse sits beside three in node_modules.
+            let ktx = dir
+                .parent()
+                .map(|d| d.join("ktx-parse").join(KTX_PARSE_FILE));
+            match ktx.filter(|k| k.is_file()) {
+                Some(k) => copy_file(&k, &out_dir.join("vendor/ktx-parse.js"))?,
+                None if opts.ktx2 => {
+                    return Err(Error::Invalid(format!(
+                        "{}: npm ktx-parse is not beside three.js (npm ci --prefix tools/js installs both)",
+                        dir.display()
+                    )))
+                }
+                None => {}
+            }
             "vendor/".to_string()
         }
         None => {
@@ -333,21 +361,24 @@ pub fn write_view(
             cdn
         }
     };
-    let (module, addons) = if three == "vendor/" {
+    let (module, addons, ktx) = if three == "vendor/" {
         (
             "./vendor/three.module.js".to_string(),
             "./vendor/addons/".to_string(),
+            "./vendor/ktx-parse.js".to_string(),
         )
     } else {
         (
             format!("{three}build/three.module.js"),
             format!("{three}examples/jsm/"),
+            format!("https://cdn.jsdelivr.net/npm/ktx-parse@{KTX_PARSE_VERSION}/{KTX_PARSE_FILE}"),
         )
     };
     let html = INDEX_HTML
         .replace("{{TITLE}}", &html_escape(&scene.name))
         .replace("{{THREE}}", &module)
-        .replace("{{ADDONS}}", &addons);
+        .replace("{{ADDONS}}", &addons)
+        .replace("{{KTX}}", &ktx);
     crate::fsutil::write_atomic(&out_dir.join("index.html"), html.as_bytes())?;
     crate::fsutil::write_atomic(&out_dir.join("view.js"), VIEW_JS.as_bytes())?;
     let report = ViewReport {

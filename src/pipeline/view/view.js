@@ -76,31 +76,88 @@ function resize() {
 window.addEventListener('resize', () => { resize(); draw(); });
 resize();
 
-// Frames: loaded once each, kept.
+// What lights the model: `hdr` (the probe's residual environment and its
+// lights, the default), `probe` (the whole probe as the environment, no
+// lights) or `ktx2` (the exported GGX-prefiltered cube's mip 0, read with npm
+// ktx-parse, no lights). `?env=` in the address chooses it.
+const params = new URLSearchParams(location.search);
+let envMode = params.get('env') || 'hdr';
+if (!frames.every((f) => f.specular)) {
+  $('env').querySelector('option[value="ktx2"]').remove();
+  if (envMode === 'ktx2') envMode = 'hdr';
+}
+if (!$('env').querySelector('option[value="probe"]')) {
+  const o = document.createElement('option');
+  o.value = 'probe'; o.textContent = 'probe (.hdr), no lights';
+  $('env').insertBefore(o, $('env').children[1] || null);
+}
+$('env').value = envMode;
+
+// A KTX 2.0 cube (uncompressed RGBA half or single floats) as a three.js cube
+// texture: level 0's six faces, in KTX 2.0's (OpenGL's) order and orientation.
+async function loadKtx2Cube(url) {
+  const { read } = await import('ktx-parse');
+  const c = read(new Uint8Array(await (await fetch(url)).arrayBuffer()));
+  if (c.faceCount !== 6 || c.supercompressionScheme !== 0 || !(c.typeSize === 2 || c.typeSize === 4)) {
+    throw new Error(`${url}: not an uncompressed float cube map`);
+  }
+  const n = c.pixelWidth;
+  const level = c.levels[0].levelData;
+  const faceBytes = n * n * 4 * c.typeSize;
+  const type = c.typeSize === 2 ? THREE.HalfFloatType : THREE.FloatType;
+  const faces = [];
+  for (let f = 0; f < 6; f++) {
+    const bytes = level.slice(f * faceBytes, (f + 1) * faceBytes);
+    const data = c.typeSize === 2 ? new Uint16Array(bytes.buffer) : new Float32Array(bytes.buffer);
+    faces.push(new THREE.DataTexture(data, n, n, THREE.RGBAFormat, type));
+  }
+  const cube = new THREE.CubeTexture(faces);
+  cube.format = THREE.RGBAFormat;
+  cube.type = type;
+  cube.generateMipmaps = false;
+  cube.minFilter = cube.magFilter = THREE.LinearFilter;
+  // three.js mirrors x when it samples a cube texture it did not render
+  // itself; KTX 2.0 cubes follow OpenGL's convention, which it samples as
+  // is for its own render targets.
+  cube.isRenderTargetTexture = true;
+  cube.needsUpdate = true;
+  return cube;
+}
+
+// Frames: loaded once each per lighting, kept.
 const hdr = new RGBELoader().setDataType(THREE.FloatType);
 const cache = new Map();
+const noLights = new THREE.Group();
 async function load(i) {
-  if (cache.has(i)) return cache.get(i);
+  const key = `${i}/${envMode}`;
+  if (cache.has(key)) return cache.get(key);
   const f = frames[i];
-  const [probe, residual, lights] = await Promise.all([
-    hdr.loadAsync(f.probe), hdr.loadAsync(f.residual), new GLTFLoader().loadAsync(f.lights),
-  ]);
+  const probe = await hdr.loadAsync(f.probe);
   probe.mapping = THREE.EquirectangularReflectionMapping;
-  const env = pmrem.fromEquirectangular(residual).texture;
-  lights.scene.position.set(-f.position[0], -f.position[1], -f.position[2]);
-  lights.scene.traverse((o) => {
-    if (o.isDirectionalLight) {
-      o.castShadow = true;
-      o.shadow.mapSize.set(1024, 1024);
-      const c = o.shadow.camera;
-      c.left = c.bottom = -0.7; c.right = c.top = 0.7; c.near = 0.01; c.far = 1e4;
-    }
-  });
-  const entry = { probe, env, lights: lights.scene };
-  cache.set(i, entry);
+  let entry;
+  if (envMode === 'ktx2') {
+    const cube = await loadKtx2Cube(f.specular);
+    entry = { probe, background: cube, env: pmrem.fromCubemap(cube).texture, lights: noLights };
+  } else if (envMode === 'probe') {
+    entry = { probe, background: probe, env: pmrem.fromEquirectangular(probe).texture, lights: noLights };
+  } else {
+    const [residual, lights] = await Promise.all([hdr.loadAsync(f.residual), new GLTFLoader().loadAsync(f.lights)]);
+    lights.scene.position.set(-f.position[0], -f.position[1], -f.position[2]);
+    lights.scene.traverse((o) => {
+      if (o.isDirectionalLight) {
+        o.castShadow = true;
+        o.shadow.mapSize.set(1024, 1024);
+        const c = o.shadow.camera;
+        c.left = c.bottom = -0.7; c.right = c.top = 0.7; c.near = 0.01; c.far = 1e4;
+      }
+    });
+    entry = { probe, background: probe, env: pmrem.fromEquirectangular(residual).texture, lights: lights.scene };
+  }
+  cache.set(key, entry);
   return entry;
 }
 
+const EQUIRECT_TURN = +(params.get('turn') ?? (Math.PI / 2));
 let current = -1;
 let shown = null;
 let ev = 0;
@@ -149,10 +206,16 @@ function modelStats() {
   renderer.render(scene, camera);
   const lit = read();
   let count = 0, sum = 0;
+  // The whole view's mean display value on an 8 x 6 grid (rows from the top).
+  const grid = new Array(48).fill(0), cells = new Array(48).fill(0);
   for (let i = 0; i < w * h; i++) {
-    if (mask[i * 4] > 128) { count++; sum += (lit[i * 4] + lit[i * 4 + 1] + lit[i * 4 + 2]) / (3 * 255); }
+    const v = (lit[i * 4] + lit[i * 4 + 1] + lit[i * 4 + 2]) / (3 * 255);
+    if (mask[i * 4] > 128) { count++; sum += v; }
+    const x = i % w, y = h - 1 - Math.floor(i / w);
+    const cell = Math.min(5, Math.floor(y * 6 / h)) * 8 + Math.min(7, Math.floor(x * 8 / w));
+    grid[cell] += v; cells[cell]++;
   }
-  return { model_pixels: count, model_mean: count ? sum / count : 0 };
+  return { model_pixels: count, model_mean: count ? sum / count : 0, grid: grid.map((g, k) => g / Math.max(1, cells[k])) };
 }
 
 function draw() {
@@ -174,8 +237,13 @@ async function show(i) {
   shown = entry;
   current = i;
   scene.add(entry.lights);
-  scene.background = entry.probe;
+  scene.background = entry.background;
   scene.environment = entry.env;
+  // three.js's equirect mapping puts +x at the image's centre column; the
+  // probes (lumiprobe's convention, as exported) put -z there.
+  const turn = entry.background.isCubeTexture ? 0 : EQUIRECT_TURN;
+  scene.backgroundRotation.set(0, turn, 0);
+  scene.environmentRotation.set(0, envMode === 'ktx2' ? 0 : EQUIRECT_TURN, 0);
   $('frame').value = i;
   $('frame-label').textContent = `${f.id} (${i + 1} of ${frames.length}), ${f.light_count} light${f.light_count === 1 ? '' : 's'}`;
   $('ev-label').textContent = `${ev >= 0 ? '+' : ''}${ev} EV (auto x${f.exposure.toPrecision(3)})`;
@@ -183,10 +251,11 @@ async function show(i) {
   const probeMean = drawProbe();
   draw();
   const stats = modelStats();
-  say({ ready: true, frame: i, id: f.id, lights: f.light_count, sdr_width: sdr.naturalWidth, probe_mean: probeMean, ...stats });
+  say({ ready: true, frame: i, id: f.id, env: envMode, lights: envMode === 'hdr' ? f.light_count : 0, sdr_width: sdr.naturalWidth, probe_mean: probeMean, ...stats });
 }
 
 $('frame').max = frames.length - 1;
+$('env').addEventListener('change', (e) => { envMode = e.target.value; show(current); });
 $('frame').addEventListener('input', (e) => show(+e.target.value));
 $('ev').addEventListener('input', (e) => {
   ev = +e.target.value;
