@@ -9,6 +9,10 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include <algorithm>
+#include <climits>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 #include <cmath>
 #include <cstring>
 
@@ -265,6 +269,17 @@ void dis_flow(rust::Slice<const uint8_t> a, rust::Slice<const uint8_t> b,
   for (int y = 0; y < height; ++y)
     std::memcpy(out.data() + size_t(y) * row_len, flow.ptr<float>(y),
                 row_len * sizeof(float));
+}
+
+void keep_freed_memory(size_t bytes) {
+#if defined(__GLIBC__)
+  const size_t cap = INT_MAX / 2;
+  const int n = static_cast<int>(std::min(bytes, cap));
+  mallopt(M_MMAP_THRESHOLD, n);
+  mallopt(M_TRIM_THRESHOLD, 2 * n);
+#else
+  (void)bytes;
+#endif
 }
 
 } // namespace lumiprobe

@@ -47,6 +47,10 @@ Homography find_homography(rust::Slice<const float> src,
                            int32_t max_iters, double confidence,
                            int32_t method);
 
+// glibc's malloc: blocks up to `bytes` from the heap (not fresh mappings), and
+// up to twice that kept when freed. A no-op elsewhere.
+void keep_freed_memory(size_t bytes);
+
 // Dense optical flow (DIS) from `a` to `b`: a(x) ~ b(x + flow(x)), written to
 // `out` (Rust-owned, 2 * width * height floats) as interleaved (dx, dy) per pixel.
 void dis_flow(rust::Slice<const uint8_t> a, rust::Slice<const uint8_t> b,
