@@ -210,3 +210,51 @@ fn bad_inputs_are_named() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("eval"), "{o:?}");
 }
+
+#[test]
+fn an_eval_report_comes_with_every_picture_it_shows() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, run) = scene_with_predictions(tmp.path());
+    let report = tmp.path().join("report");
+    let out = tmp.path().join("view");
+    let ok = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    let (s, r) = (scene.to_str().unwrap(), run.to_str().unwrap());
+    ok(&["eval", s, "--pred", r, "--report", report.to_str().unwrap()]);
+    ok(&[
+        "view",
+        s,
+        "--probes",
+        r,
+        "--out",
+        out.to_str().unwrap(),
+        "--eval",
+        report.to_str().unwrap(),
+    ]);
+    let view: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("view.json")).unwrap()).unwrap();
+    assert_eq!(view["eval"][0], "eval/report.html", "{view}");
+    let html = std::fs::read_to_string(out.join("eval/report.html")).unwrap();
+    let srcs: Vec<&str> = html
+        .split("src=\"")
+        .skip(1)
+        .map(|t| &t[..t.find('"').unwrap()])
+        .filter(|s| !s.starts_with("data:"))
+        .collect();
+    assert!(srcs.len() > 2, "the report shows pictures: {srcs:?}");
+    for src in srcs {
+        assert!(
+            out.join("eval").join(src).is_file(),
+            "{src} is missing beside the copied report"
+        );
+    }
+}

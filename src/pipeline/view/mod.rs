@@ -205,15 +205,38 @@ fn copy_model(model: &Path, out: &Path) -> Result<String> {
 /// The report, plots and thumbnails of an `eval --report` folder, copied into
 /// `out/eval`; the page's paths to them (the report first).
 fn copy_eval(eval: &Path, out: &Path) -> Result<Vec<String>> {
+    // The report's files and those of its subfolders one level down (the
+    // contact sheet's thumbnails), as paths relative to `eval`.
     let mut names = Vec::new();
-    for entry in std::fs::read_dir(eval).map_err(|e| Error::io(eval, e))? {
-        let entry = entry.map_err(|e| Error::io(eval, e))?;
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let keep = [".html", ".png", ".csv", ".json"]
+    let list = |dir: &Path| -> Result<Vec<(String, bool)>> {
+        let mut v = Vec::new();
+        for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+            let entry = entry.map_err(|e| Error::io(dir, e))?;
+            let path = entry.path();
+            v.push((
+                entry.file_name().to_string_lossy().into_owned(),
+                path.is_dir(),
+            ));
+        }
+        Ok(v)
+    };
+    let keep = |name: &str| {
+        [".html", ".png", ".csv", ".json"]
             .iter()
-            .any(|e| name.ends_with(e));
-        if keep && entry.path().is_file() {
+            .any(|e| name.ends_with(e))
+    };
+    for (name, is_dir) in list(eval)? {
+        if is_dir {
+            for (inner, inner_dir) in list(&eval.join(&name))? {
+                if !inner_dir && inner.ends_with(".png") {
+                    names.push(format!("{name}/{inner}"));
+                }
+            }
+        } else if keep(&name) {
             names.push(name);
+        }
+        if names.len() > MAX_EVAL_FILES {
+            break;
         }
     }
     if names.len() > MAX_EVAL_FILES {
@@ -237,9 +260,10 @@ fn copy_eval(eval: &Path, out: &Path) -> Result<Vec<String>> {
     for n in &names {
         copy_file(&eval.join(n), &out.join("eval").join(n))?;
     }
+    // The page shows the report's link and its top-level plots.
     Ok(names
         .into_iter()
-        .filter(|n| n.ends_with(".html") || n.ends_with(".png"))
+        .filter(|n| !n.contains('/') && (n.ends_with(".html") || n.ends_with(".png")))
         .map(|n| format!("eval/{n}"))
         .collect())
 }
