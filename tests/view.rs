@@ -258,3 +258,42 @@ fn an_eval_report_comes_with_every_picture_it_shows() {
         );
     }
 }
+
+#[test]
+fn the_pages_probes_are_at_most_max_width_wide_with_their_light_kept() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, run) = scene_with_predictions(tmp.path());
+    let (s, r) = (scene.to_str().unwrap(), run.to_str().unwrap());
+    let power = |width: &str| {
+        let out = tmp.path().join(format!("view{width}"));
+        let o = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+            .args([
+                "view",
+                s,
+                "--probes",
+                r,
+                "--frames",
+                "0",
+                "--max-width",
+                width,
+            ])
+            .args(["--out", out.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let img = lumiprobe::image::io::read_hdr(&out.join("probes/frame_000.hdr")).unwrap();
+        let sa = lumiprobe::sphere::row_solid_angles(img.width(), img.height());
+        let p: f64 = img
+            .data()
+            .chunks_exact(3)
+            .enumerate()
+            .map(|(i, c)| luminance([c[0], c[1], c[2]]) as f64 * sa[i / img.width()] as f64)
+            .sum();
+        (img.width(), p)
+    };
+    let (full_w, full) = power("4096");
+    let (small_w, small) = power("32");
+    assert_eq!((full_w, small_w), (128, 32));
+    // RGBE rounding aside, the light is the same.
+    assert!((small / full - 1.0).abs() < 0.01, "{small} against {full}");
+}

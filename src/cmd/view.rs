@@ -36,6 +36,10 @@ pub struct ViewArgs {
     /// equirect and the lights.
     #[arg(long)]
     ktx2: bool,
+    /// Largest width of the probes the page loads (wider ones are box filtered
+    /// down, their light kept).
+    #[arg(long, default_value_t = lumiprobe::pipeline::view::VIEW_MAX_WIDTH)]
+    max_width: usize,
     /// Serve the page on 127.0.0.1 until interrupted (browsers run the page's
     /// modules only from http://).
     #[arg(long)]
@@ -56,6 +60,7 @@ pub fn run(a: ViewArgs, quiet: bool) -> Result<()> {
         three: a.three,
         frames: a.frames.map(|f| f.0),
         ktx2: a.ktx2,
+        max_width: a.max_width,
     };
     let rep = write_view(&scene, &a.probes, &out, &opts)?;
     for w in &rep.warnings {

@@ -87,6 +87,11 @@ pub struct ExportOptions {
     /// What counts as a light for [`ExportFormat::Lights`].
     #[serde(default)]
     pub lights: LightOptions,
+    /// Largest width of the exported equirects: wider predictions are box
+    /// filtered down, their power kept ([`crate::sphere::downsample_box`]);
+    /// `None`: their own size.
+    #[serde(default)]
+    pub max_width: Option<usize>,
 }
 
 impl Default for ExportOptions {
@@ -104,6 +109,7 @@ impl Default for ExportOptions {
             irradiance_face_size: 32,
             ktx_format: None,
             lights: LightOptions::default(),
+            max_width: None,
         }
     }
 }
@@ -388,12 +394,21 @@ pub fn export(
         let (pred, warning) = read_hdr_repaired(&path)?;
         report.warnings.extend(warning);
         let (w, h) = (pred.width(), pred.height());
-        let img = rotate(
+        let mut img = rotate(
             &pred,
             camera_from_image(&frame.pose, opts.orientation),
             w,
             h,
         );
+        if let Some(max_w) = opts.max_width {
+            match crate::sphere::downsample_box(&img, max_w) {
+                Some(small) => img = small,
+                None => report.warnings.push(format!(
+                    "{}: {w}x{h} has no block size that brings it to {max_w} wide; exported at its own size",
+                    path.display()
+                )),
+            }
+        }
         let mut fe = FrameExport {
             id: frame.id.clone(),
             files: Vec::new(),

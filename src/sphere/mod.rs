@@ -179,6 +179,50 @@ pub fn rotate(img: &HdrImage, r: Mat3, out_w: usize, out_h: usize) -> HdrImage {
     out
 }
 
+/// A panorama at most `max_w` wide, each output pixel the solid-angle weighted
+/// mean radiance of a `k` x `k` block (the smallest `k` that divides both sides
+/// and brings the width to `max_w` or under): every block's power (radiance x
+/// solid angle) is kept, so a sun a pixel wide keeps its light. `None` when no
+/// such `k` exists (sides with no common divisor in range); the image itself
+/// when it is narrow enough.
+pub fn downsample_box(img: &HdrImage, max_w: usize) -> Option<HdrImage> {
+    let (w, h) = (img.width(), img.height());
+    if w <= max_w || w == 0 || h == 0 {
+        return Some(img.clone());
+    }
+    let k = (w.div_ceil(max_w.max(1))..=w.min(h)).find(|k| w % k == 0 && h % k == 0)?;
+    let (ow, oh) = (w / k, h / k);
+    let sa = row_solid_angles(w, h);
+    let mut out = HdrImage::new(ow, oh);
+    for oy in 0..oh {
+        let rows = oy * k..(oy + 1) * k;
+        let weight: f64 = rows.clone().map(|y| sa[y] as f64).sum::<f64>() * k as f64;
+        for ox in 0..ow {
+            let mut acc = [0.0f64; 3];
+            for y in rows.clone() {
+                for x in ox * k..(ox + 1) * k {
+                    let c = img.get(x, y);
+                    for ch in 0..3 {
+                        acc[ch] += c[ch] as f64 * sa[y] as f64;
+                    }
+                }
+            }
+            out.set(
+                ox,
+                oy,
+                acc.map(|a| {
+                    if weight > 0.0 {
+                        (a / weight) as f32
+                    } else {
+                        0.0
+                    }
+                }),
+            );
+        }
+    }
+    Some(out)
+}
+
 /// Resamples a panorama to a new size (bilinear, seam- and pole-aware).
 pub fn resize(img: &HdrImage, out_w: usize, out_h: usize) -> HdrImage {
     if img.width() == out_w && img.height() == out_h {
@@ -220,6 +264,41 @@ pub fn orthonormalize(m: Mat3) -> Option<Mat3> {
         Some(x)
     } else {
         None
+    }
+}
+
+#[cfg(test)]
+mod box_tests {
+    use super::*;
+
+    fn power(img: &HdrImage) -> f64 {
+        let sa = row_solid_angles(img.width(), img.height());
+        (0..img.height())
+            .flat_map(|y| (0..img.width()).map(move |x| (x, y)))
+            .map(|(x, y)| crate::image::luminance(img.get(x, y)) as f64 * sa[y] as f64)
+            .sum()
+    }
+
+    #[test]
+    fn a_box_downsample_keeps_the_power_of_a_one_pixel_sun() {
+        let img = HdrImage::from_fn(96, 48, |x, y| {
+            if (x, y) == (37, 11) {
+                [1e6, 9e5, 8e5]
+            } else {
+                [
+                    0.2 + 0.01 * (x % 7) as f32,
+                    0.3,
+                    0.1 + 0.02 * (y % 5) as f32,
+                ]
+            }
+        });
+        let small = downsample_box(&img, 32).unwrap();
+        assert_eq!((small.width(), small.height()), (32, 16));
+        let (a, b) = (power(&img), power(&small));
+        assert!((b / a - 1.0).abs() < 1e-4, "{b} against {a}");
+        // Narrow enough: unchanged; sides with no common divisor: none.
+        assert_eq!(downsample_box(&img, 96).unwrap(), img);
+        assert!(downsample_box(&HdrImage::new(97, 47), 32).is_none());
     }
 }
 

@@ -52,7 +52,7 @@ const MAX_EVAL_FILES: usize = 256;
 const MAX_COPY_BYTES: u64 = 512 << 20;
 
 /// What [`write_view`] puts in the page besides the run.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct ViewOptions {
     /// A glTF model (`.glb`, or `.gltf` with its files beside it) to light.
     pub model: Option<PathBuf>,
@@ -67,6 +67,26 @@ pub struct ViewOptions {
     /// Also write each frame's GGX-prefiltered cube as KTX 2.0, which the page
     /// can light with instead of the equirect (read with npm `ktx-parse`).
     pub ktx2: bool,
+    /// Largest width of the probes the page loads (a browser holds each as
+    /// float RGBA: 7776x3888 would take 480 MB a frame); wider ones are box
+    /// filtered down, their power kept.
+    pub max_width: usize,
+}
+
+/// The page's probes at most this wide by default.
+pub const VIEW_MAX_WIDTH: usize = 2048;
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        ViewOptions {
+            model: None,
+            eval: None,
+            three: None,
+            frames: None,
+            ktx2: false,
+            max_width: VIEW_MAX_WIDTH,
+        }
+    }
 }
 
 /// One frame as the page shows it.
@@ -289,6 +309,7 @@ pub fn write_view(
                 vec![ExportFormat::Hdr, ExportFormat::Lights]
             },
             frames: opts.frames.clone(),
+            max_width: Some(opts.max_width),
             ..ExportOptions::default()
         },
     )?;
