@@ -86,11 +86,6 @@ if (!frames.every((f) => f.specular)) {
   $('env').querySelector('option[value="ktx2"]').remove();
   if (envMode === 'ktx2') envMode = 'hdr';
 }
-if (!$('env').querySelector('option[value="probe"]')) {
-  const o = document.createElement('option');
-  o.value = 'probe'; o.textContent = 'probe (.hdr), no lights';
-  $('env').insertBefore(o, $('env').children[1] || null);
-}
 $('env').value = envMode;
 
 // A KTX 2.0 cube (uncompressed RGBA half or single floats) as a three.js cube
