@@ -336,6 +336,51 @@ fn a_sun_is_exported_as_a_gltf_light_three_js_reads_and_the_light_is_kept() {
     );
     assert!(at.distance(want) < 0.05, "{at} vs {want}");
     assert!((t["intensity"].as_f64().unwrap() / (red * 6.25) - 1.0).abs() < 1e-6);
+
+    // Where the report says the light lies on a plane facing the frame (a
+    // ceiling panel: world -z), it is a spot light there shining down over a
+    // half-space, its intensity on the axis set so that the frame, off the
+    // axis, gets the light it measured under glTF's spot falloff.
+    let down_world = glam::Vec3::NEG_Z;
+    let facing_cam = s.frames[1].pose.world_from_camera.transpose() * down_world;
+    let mut report = report;
+    report["fusion"]["lights"][0]["facing"] = serde_json::json!(facing_cam.to_array());
+    std::fs::write(pred.join("frame_001.json"), report.to_string()).unwrap();
+    let out3 = tmp.path().join("export_spot");
+    export_lights(&scene, &pred, &out3);
+    let three = three_lights(&out3.join("frame_001_lights.gltf"));
+    assert_eq!(three.as_array().unwrap().len(), 1, "{three}");
+    let t = &three[0];
+    assert_eq!(t["type"], "SpotLight", "{t}");
+    let at = glam::Vec3::new(
+        t["position"][0].as_f64().unwrap() as f32,
+        t["position"][1].as_f64().unwrap() as f32,
+        t["position"][2].as_f64().unwrap() as f32,
+    );
+    assert!(at.distance(want) < 0.05, "{at} vs {want}");
+    let travel = glam::Vec3::new(
+        t["travel"][0].as_f64().unwrap() as f32,
+        t["travel"][1].as_f64().unwrap() as f32,
+        t["travel"][2].as_f64().unwrap() as f32,
+    );
+    assert!(
+        travel.angle_between(glam::Vec3::NEG_Y).to_degrees() < 1.0,
+        "{travel}"
+    );
+    assert!(
+        (t["angle"].as_f64().unwrap() - std::f64::consts::FRAC_PI_2).abs() < 1e-6,
+        "{t}"
+    );
+    assert!((t["penumbra"].as_f64().unwrap() - 1.0).abs() < 1e-6, "{t}");
+    // The frame sits off the spot's axis by the sun's elevation's complement.
+    let cos = down_world.dot(-world) as f64;
+    assert!(cos > 0.2, "the test's light is above the frame: {cos}");
+    let want_intensity = red * 6.25 / (cos * cos);
+    assert!(
+        (t["intensity"].as_f64().unwrap() / want_intensity - 1.0).abs() < 1e-4,
+        "{} vs {want_intensity}",
+        t["intensity"]
+    );
 }
 
 /// What headless Blender reads of equirect files, loaded as a world

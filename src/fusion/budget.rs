@@ -73,6 +73,7 @@ pub(super) fn assign_placed<'v>(
             moved_deg,
             probe_power: light.seen,
             distance: light.distance,
+            facing: light.view.as_ref().and_then(|v| v.facing()),
         });
         let Some(o) = target else { continue };
         let a = &mut regions[o].placed;

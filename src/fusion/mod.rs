@@ -250,6 +250,11 @@ pub struct LightReport {
     /// Its distance from the frame in the poses' unit (`None` at infinity).
     #[serde(default)]
     pub distance: Option<f32>,
+    /// Where the light lies on a plane the two probes agree on (a ceiling
+    /// panel, a wall lamp): the plane's unit normal in the frame's camera axes,
+    /// on the frame's side. A flat emitter shines into that half-space only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub facing: Option<[f32; 3]>,
 }
 
 /// Where the evidence disagreed in one frame and the fusion took the more

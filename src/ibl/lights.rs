@@ -189,6 +189,36 @@ pub enum Placement {
     /// illuminance (intensity = illuminance x distance^2, candela when the
     /// probe is in cd/m² and the unit is the metre).
     Point { position: [f32; 3], distance: f32 },
+    /// A point light on a flat emitter (a ceiling panel, a wall lamp): a spot
+    /// light shining into the half-space `facing` points into (glTF axes,
+    /// unit), outer cone 90 degrees, inner cone 0. glTF's spot falloff is the
+    /// square of the cosine off its axis; `falloff` is that factor in the
+    /// probe's direction (at least [`MIN_SPOT_FALLOFF`]), so the intensity
+    /// on the axis is illuminance x distance^2 / falloff and the probe gets
+    /// the light it measured.
+    Spot {
+        position: [f32; 3],
+        distance: f32,
+        facing: [f32; 3],
+        falloff: f32,
+    },
+}
+
+/// Smallest spot falloff a light is given (the square of cos 75 degrees): a
+/// probe that sees a flat emitter at grazing incidence measures too little of
+/// it to set its intensity on the axis.
+pub const MIN_SPOT_FALLOFF: f32 = 0.067;
+
+/// glTF's spot falloff (inner cone 0, outer cone 90 degrees) at a receiver in
+/// direction `to_receiver` (unit) from a light facing `facing` (unit): the
+/// square of the cosine between them, at least [`MIN_SPOT_FALLOFF`].
+pub fn spot_falloff(facing: Vec3, to_receiver: Vec3) -> f32 {
+    let c = facing.dot(to_receiver).max(0.0);
+    if c.is_finite() {
+        (c * c).max(MIN_SPOT_FALLOFF)
+    } else {
+        MIN_SPOT_FALLOFF
+    }
 }
 
 /// The lights as a glTF 2.0 document with `KHR_lights_punctual`, colour
@@ -230,6 +260,27 @@ pub fn lights_gltf(
                 }));
                 nodes.push(serde_json::json!({
                     "name": name, "translation": position, "extensions": ext,
+                }));
+            }
+            Placement::Spot {
+                position,
+                distance,
+                facing,
+                falloff,
+            } => {
+                let d = *distance as f64;
+                let f = (*falloff).max(MIN_SPOT_FALLOFF) as f64;
+                let q = glam::Quat::from_rotation_arc(
+                    Vec3::NEG_Z,
+                    Vec3::from_array(*facing).normalize_or_zero(),
+                );
+                defs.push(serde_json::json!({
+                    "name": name, "type": "spot", "color": colour, "intensity": max * d * d / f,
+                    "spot": { "innerConeAngle": 0.0, "outerConeAngle": std::f32::consts::FRAC_PI_2 },
+                }));
+                nodes.push(serde_json::json!({
+                    "name": name, "translation": position, "rotation": [q.x, q.y, q.z, q.w],
+                    "extensions": ext,
                 }));
             }
         }
@@ -404,5 +455,53 @@ mod tests {
         );
         // A sun overhead shines straight down.
         assert!((q * Vec3::NEG_Z).dot(Vec3::NEG_Y) > 0.9999);
+    }
+
+    #[test]
+    fn a_flat_emitters_spot_gives_the_probe_off_its_axis_the_light_it_measured() {
+        let l = ProbeLight {
+            dir: [0.6, 0.8, 0.0],
+            rgb: [2.0, 4.0, 1.0],
+            solid_angle_sr: 1e-4,
+        };
+        // A panel 2 units away, facing down; the probe is 36.87 degrees off its
+        // axis (cos 0.8), the falloff 0.64.
+        let facing = Vec3::NEG_Y;
+        let to_probe = -Vec3::from_array(l.dir);
+        let falloff = spot_falloff(facing, to_probe);
+        assert!((falloff - 0.64).abs() < 1e-6, "{falloff}");
+        let g = lights_gltf(
+            &[(
+                l,
+                Placement::Spot {
+                    position: [1.2, 1.6, 0.0],
+                    distance: 2.0,
+                    facing: facing.to_array(),
+                    falloff,
+                },
+            )],
+            glam::Mat3::IDENTITY,
+        );
+        let def = &g["extensions"]["KHR_lights_punctual"]["lights"][0];
+        assert_eq!(def["type"], "spot");
+        assert_eq!(def["spot"]["innerConeAngle"].as_f64(), Some(0.0));
+        let outer = def["spot"]["outerConeAngle"].as_f64().unwrap();
+        assert!((outer - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+        // On the axis: illuminance 4 x 2^2 / 0.64.
+        let i = def["intensity"].as_f64().unwrap();
+        assert!((i - 25.0).abs() < 1e-4, "{i}");
+        let r = &g["nodes"][0]["rotation"];
+        let q = glam::Quat::from_xyzw(
+            r[0].as_f64().unwrap() as f32,
+            r[1].as_f64().unwrap() as f32,
+            r[2].as_f64().unwrap() as f32,
+            r[3].as_f64().unwrap() as f32,
+        );
+        assert!((q * Vec3::NEG_Z).dot(facing) > 0.9999);
+        // A probe at grazing incidence or behind the panel sets no runaway
+        // intensity.
+        assert_eq!(spot_falloff(facing, Vec3::X), MIN_SPOT_FALLOFF);
+        assert_eq!(spot_falloff(facing, Vec3::Y), MIN_SPOT_FALLOFF);
+        assert_eq!(spot_falloff(facing, Vec3::NAN), MIN_SPOT_FALLOFF);
     }
 }

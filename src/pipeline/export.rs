@@ -26,7 +26,7 @@
 use crate::error::{Error, Result};
 use crate::ibl::ktx2::{encode_cube, gl_cube, peak, KtxFormat, HALF_MAX};
 use crate::ibl::lights::{
-    integral, lights_gltf, split_lights, LightOptions, Placement, ProbeLight,
+    integral, lights_gltf, split_lights, spot_falloff, LightOptions, Placement, ProbeLight,
 };
 use crate::ibl::prefilter::{cube_texel_solid_angle, mip_roughness, prefilter_specular};
 use crate::ibl::{Sh9, SpecularOptions};
@@ -222,11 +222,24 @@ fn cube_power(faces: &[HdrImage; 6]) -> f64 {
     s
 }
 
+/// A light a fusion run placed at a distance, as its frame sees it (camera
+/// axes).
+#[derive(Clone, Copy, Debug)]
+struct PlacedAt {
+    /// Direction from the frame (unit).
+    dir: Vec3,
+    /// Distance from the frame, in the poses' unit.
+    distance: f32,
+    /// The normal of the plane it lies on, on the frame's side (a flat
+    /// emitter), when the probes agreed on one.
+    facing: Option<Vec3>,
+}
+
 /// The lights a fusion run placed at a distance for the frame whose prediction
 /// is `pred` (`w` x `h`): direction in the frame's camera axes and distance,
 /// from the run's report beside it (`<id>.json`, `fusion.lights`). None when
 /// there is no report or the method placed none.
-fn placed_lights(pred: &Path, w: usize, h: usize) -> Result<Vec<(Vec3, f32)>> {
+fn placed_lights(pred: &Path, w: usize, h: usize) -> Result<Vec<PlacedAt>> {
     let report = pred.with_extension("json");
     if !report.is_file() {
         return Ok(Vec::new());
@@ -247,7 +260,20 @@ fn placed_lights(pred: &Path, w: usize, h: usize) -> Result<Vec<(Vec3, f32)>> {
             continue;
         }
         let dir = crate::sphere::uv_to_dir(x as f32 / w as f32, y as f32 / h as f32);
-        out.push((dir, d as f32));
+        let facing = l["facing"].as_array().and_then(|v| {
+            let c: Vec<f32> = v
+                .iter()
+                .filter_map(|c| c.as_f64())
+                .map(|c| c as f32)
+                .collect();
+            let n = (c.len() == 3).then(|| Vec3::new(c[0], c[1], c[2]).normalize_or_zero())?;
+            (n != Vec3::ZERO && n.is_finite()).then_some(n)
+        });
+        out.push(PlacedAt {
+            dir,
+            distance: d as f32,
+            facing,
+        });
     }
     Ok(out)
 }
@@ -259,7 +285,7 @@ fn placed_lights(pred: &Path, w: usize, h: usize) -> Result<Vec<(Vec3, f32)>> {
 /// axes for `Orientation::Camera`), in the poses' unit.
 fn place(
     lights: Vec<ProbeLight>,
-    placed: &[(Vec3, f32)],
+    placed: &[PlacedAt],
     pose: &Pose,
     o: Orientation,
 ) -> Vec<(ProbeLight, Placement)> {
@@ -277,16 +303,29 @@ fn place(
         .map(|l| {
             let d = Vec3::from_array(l.dir);
             let reach = (crate::sphere::disc_radius(l.solid_angle_sr) as f32) + 3f32.to_radians();
+            let img_from_cam = cam_from_img.transpose();
             let near = placed
                 .iter()
-                .map(|&(c, dist)| (cam_from_img.transpose() * c, dist))
+                .map(|p| (img_from_cam * p.dir, p))
                 .filter(|(c, _)| c.angle_between(d) <= reach)
                 .min_by(|a, b| a.0.angle_between(d).total_cmp(&b.0.angle_between(d)));
             let place = match near {
-                Some((c, dist)) => Placement::Point {
-                    position: (origin + c.normalize() * dist).to_array(),
-                    distance: dist,
-                },
+                Some((c, p)) => {
+                    let (c, dist) = (c.normalize(), p.distance);
+                    let position = (origin + c * dist).to_array();
+                    match p.facing.map(|n| (img_from_cam * n).normalize_or_zero()) {
+                        Some(facing) if facing != Vec3::ZERO => Placement::Spot {
+                            position,
+                            distance: dist,
+                            facing: facing.to_array(),
+                            falloff: spot_falloff(facing, -c),
+                        },
+                        _ => Placement::Point {
+                            position,
+                            distance: dist,
+                        },
+                    }
+                }
                 None => Placement::Directional,
             };
             (l, place)

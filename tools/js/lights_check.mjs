@@ -2,8 +2,9 @@
 // KHR_lights_punctual) with three.js's own GLTFLoader (npm `three`) and prints
 // the lights three.js builds from it, as JSON [{type, color: [r, g, b],
 // intensity, travel: [x, y, z], position: [x, y, z]}, ...]: `travel` is the
-// way a directional light shines, `position` where a point light is, in world
-// axes. Used by tests/export.rs.
+// way a directional or spot light shines, `position` where a point or spot
+// light is, in world axes; spot lights add their cone `angle` and `penumbra`.
+// Used by tests/export.rs.
 import { readFileSync } from 'node:fs';
 import { Vector3 } from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
@@ -27,6 +28,7 @@ new GLTFLoader().parse(text, '', (gltf) => {
       intensity: o.intensity,
       travel: [travel.x, travel.y, travel.z],
       position: [from.x, from.y, from.z],
+      ...(o.isSpotLight ? { angle: o.angle, penumbra: o.penumbra } : {}),
     });
   });
   console.log(JSON.stringify(out));

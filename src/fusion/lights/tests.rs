@@ -364,6 +364,29 @@ fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
     // Only pixels along the panel's edge, sampled between pixels, miss.
     assert!(close as f64 > 0.85 * lit as f64, "{close} of {lit}");
     assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
+    // The panel faces the frame below it: its plane's normal, turned to the
+    // frame's side, points down (world -z) in the frame's camera axes.
+    let down = frame.world_from_camera.transpose() * Vec3::NEG_Z;
+    let facing = Vec3::from_array(view.facing().expect("a panel on a plane"));
+    assert!(
+        facing.angle_between(down).to_degrees() < 2.0,
+        "{facing} vs {down}"
+    );
+    let above = LightView {
+        frame: upright(Vec3::new(1.1, 0.6, 3.5)),
+        ..view
+    };
+    let up = above.frame.world_from_camera.transpose() * Vec3::Z;
+    let facing = Vec3::from_array(above.facing().expect("a panel on a plane"));
+    assert!(
+        facing.angle_between(up).to_degrees() < 2.0,
+        "{facing} vs {up}"
+    );
+    let far = LightView {
+        surface: Surface::Infinity,
+        ..view
+    };
+    assert_eq!(far.facing(), None);
 }
 
 #[test]

@@ -18,6 +18,22 @@ pub struct LightView<'a> {
 }
 
 impl LightView<'_> {
+    /// The unit normal of the plane the light lies on, in the frame's camera
+    /// axes, turned to the frame's side; `None` for a light at infinity or a
+    /// frame in the plane.
+    pub fn facing(&self) -> Option<[f32; 3]> {
+        let Surface::Plane { point, normal } = self.surface else {
+            return None;
+        };
+        let side = normal.dot(self.frame.position - point);
+        if !(side.is_finite() && side.abs() > 1e-6) {
+            return None;
+        }
+        let n =
+            (self.frame.world_from_camera.transpose() * normal * side.signum()).normalize_or_zero();
+        (n != Vec3::ZERO && n.is_finite()).then(|| n.to_array())
+    }
+
     /// Radiance the frame sees in direction `d` (its camera axes) through the
     /// light's surface ([`LightView::sample`] without the magnification).
     pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {

@@ -139,6 +139,13 @@ async function load(i) {
     const [residual, lights] = await Promise.all([hdr.loadAsync(f.residual), new GLTFLoader().loadAsync(f.lights)]);
     lights.scene.position.set(-f.position[0], -f.position[1], -f.position[2]);
     lights.scene.traverse((o) => {
+      if (o.isSpotLight) {
+        // A flat emitter (a ceiling panel) as glTF's 90-degree spot: its
+        // shadows from a perspective map.
+        o.castShadow = true;
+        o.shadow.mapSize.set(1024, 1024);
+        o.shadow.camera.near = 0.01;
+      }
       if (o.isDirectionalLight) {
         o.castShadow = true;
         o.shadow.mapSize.set(1024, 1024);
