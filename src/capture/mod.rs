@@ -21,6 +21,7 @@ pub mod calibrate;
 pub mod cli;
 pub mod debevec;
 pub mod exif;
+pub mod exposure;
 pub mod fisheye;
 pub mod localize;
 pub mod merge;

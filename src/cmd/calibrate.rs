@@ -1,5 +1,8 @@
-//! `lumiprobe calibrate`: the SDR frames' exposure gain against the probes.
+//! `lumiprobe calibrate`: the SDR frames' exposure gain against the probes, for
+//! the whole walk or frame by frame.
 
+use lumiprobe::capture::calibrate::{calibrate_gain, CalibrateOptions};
+use lumiprobe::capture::exposure::{walk_exposure, ExposureOptions};
 use lumiprobe::Result;
 use std::path::PathBuf;
 
@@ -8,16 +11,83 @@ use std::path::PathBuf;
 pub struct CalibrateArgs {
     /// Scene folder (with poses.json) or the poses.json itself.
     pub scene: PathBuf,
+    /// Each frame's exposure and white balance (a camera with auto-exposure),
+    /// smoothed along the walk: a table on stdout, one row per frame.
+    #[arg(long)]
+    pub per_frame: bool,
+    /// With --per-frame: also write the frames' gains as JSON to this file.
+    #[arg(long, requires = "per_frame")]
+    pub json: Option<PathBuf>,
 }
 
 /// Runs the command (progress and notes on stderr unless `quiet`).
 pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
-    let CalibrateArgs { scene } = a;
+    let CalibrateArgs {
+        scene,
+        per_frame,
+        json,
+    } = a;
     let scene = lumiprobe::pipeline::plan::load_scene(&scene, !quiet)?;
-    let est = lumiprobe::capture::calibrate::calibrate_gain(
-        &scene,
-        &lumiprobe::capture::calibrate::CalibrateOptions::default(),
-    )?;
+    if per_frame {
+        let w = walk_exposure(&scene, &ExposureOptions::default())?;
+        println!("frame      EV vs scene  white balance (r/g, b/g)  sigma EV  blocks  note");
+        let ln2 = std::f64::consts::LN_2;
+        for (k, f) in scene.frames.iter().enumerate() {
+            let g = w.gain[k];
+            let lum = 0.2126 * g[0] + 0.7152 * g[1] + 0.0722 * g[2];
+            let m = &w.measured[k];
+            let note = if w.outliers.contains(&k) {
+                "outlier: its neighbours' gain"
+            } else if w.filled.contains(&k) {
+                "nothing measured: nearest frame's gain"
+            } else {
+                ""
+            };
+            println!(
+                "{:<10} {:>+11.3}  {:>10.3} {:>10.3}    {:>8.3}  {:>6}  {note}",
+                f.id,
+                (lum as f64 / scene.path_gain as f64).ln() / ln2,
+                g[0] / g[1],
+                g[2] / g[1],
+                m.sigma / ln2,
+                m.blocks,
+            );
+        }
+        println!(
+            "{}: exposure spread {:.1}x its noise: {}",
+            scene.name,
+            w.spread_over_noise,
+            if w.varies() {
+                "it moved along the walk (per-frame gains are worth using)"
+            } else {
+                "one gain serves the walk"
+            }
+        );
+        if let Some(path) = json {
+            let rows: Vec<serde_json::Value> = scene
+                .frames
+                .iter()
+                .zip(&w.gain)
+                .zip(&w.measured)
+                .map(|((f, g), m)| {
+                    let raw = m.log_gain.map(|v| v.exp());
+                    serde_json::json!({"id": f.id, "gain": g, "measured": raw, "sigma": m.sigma, "blocks": m.blocks})
+                })
+                .collect();
+            let doc = serde_json::json!({
+                "scene_gain": scene.path_gain,
+                "spread_over_noise": w.spread_over_noise,
+                "varies": w.varies(),
+                "outliers": w.outliers,
+                "filled": w.filled,
+                "frames": rows,
+            });
+            let text = serde_json::to_string_pretty(&doc).expect("JSON of numbers and strings");
+            lumiprobe::fsutil::write_atomic(&path, text.as_bytes())?;
+        }
+        return Ok(());
+    }
+    let est = calibrate_gain(&scene, &CalibrateOptions::default())?;
     println!(
         "{}: recovered gain {:.5} from {} frames (spread: log IQR {:.3}); scene file says {:.5} ({:+.2}%)",
         scene.name,

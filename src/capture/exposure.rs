@@ -1,0 +1,558 @@
+//! Each frame's exposure and white balance along the walk (issue 20): a consumer
+//! 360° camera meters every frame (auto-exposure, lagging the view) and drifts in
+//! white balance, so one gain for the whole walk ([`super::calibrate`]) leaves
+//! frames a stop or more off the probes' scale.
+//!
+//! **Per frame.** The nearest probe turned into the frame's orientation and both
+//! averaged over blocks, as in [`super::calibrate`]; every block whose frame
+//! pixels are all well exposed votes, per channel, with the log ratio of the
+//! frame's decoded code to the probe's radiance. A frame's log gain per channel is
+//! the median vote; its uncertainty the votes' spread (interquartile range over
+//! 1.349, a normal's sigma) over the square root of their number, floored at
+//! [`ExposureOptions::floor`] (votes are not independent: parallax moves whole
+//! surfaces).
+//!
+//! **Against the neighbouring frame.** Consecutive frames are a step apart, far
+//! less than a frame and its probe, so parallax hardly moves what they see: the
+//! frame before, decoded and turned into this frame's orientation, gives the
+//! change of log gain from one frame to the next the same way (blocks well
+//! exposed in both), with a smaller floor ([`ExposureOptions::relative_floor`]).
+//!
+//! **Along the walk.** Per channel, the log gains `x` of all frames minimise
+//! `sum (x[k] - p[k])^2 / s_p^2 + sum (x[k] - x[k-1] - r[k])^2 / s_r^2` (`p` the
+//! probe measurements, `r` the frame-to-frame ones): the frame-to-frame changes
+//! carry the walk's shape, jumps included (a meter that jumps shows the jump in
+//! `r`), and the probes its level, their parallax errors averaged over the
+//! frames. Residuals beyond [`HUBER`] sigmas are reweighted (iteratively, Huber's
+//! loss), so a probe comparison that parallax or a passer-by spoils, or one bad
+//! frame-to-frame step, loses its pull. A frame with no usable block keeps the
+//! chain through its neighbours.
+
+use super::calibrate::CalibrateOptions;
+use crate::error::{Error, Result};
+use crate::image::{io, HdrImage, SdrImage};
+use crate::scene::Scene;
+use crate::sphere::rotate;
+use crate::tonemap::Response;
+use serde::Serialize;
+
+/// Settings of [`walk_exposure`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExposureOptions {
+    /// Blocks and well-exposed codes, as for the walk's single gain.
+    pub blocks: CalibrateOptions,
+    /// Smallest uncertainty of a frame's log gain against its probe (0.05:
+    /// 0.07 EV; parallax moves whole surfaces, so the votes are not
+    /// independent).
+    pub floor: f64,
+    /// Smallest uncertainty of the change of log gain between consecutive
+    /// frames.
+    pub relative_floor: f64,
+    /// Growth of a probe measurement's uncertainty with the frame's distance
+    /// from its probe, per walk-median distance (0: none).
+    pub parallax: f64,
+}
+
+impl Default for ExposureOptions {
+    fn default() -> Self {
+        ExposureOptions {
+            blocks: CalibrateOptions::default(),
+            floor: 0.05,
+            relative_floor: 0.01,
+            parallax: 1.0,
+        }
+    }
+}
+
+/// One frame's exposure as its blocks measured it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FrameExposure {
+    /// Natural-log gain per channel (radiance = f⁻¹(code) / gain); NaN without
+    /// a usable block.
+    pub log_gain: [f64; 3],
+    /// Natural-log gain of the luminance (the channels' Rec. 709 weights).
+    pub log_luminance_gain: f64,
+    /// Uncertainty (one sigma) of the log gains.
+    pub sigma: f64,
+    /// Blocks that voted.
+    pub blocks: usize,
+}
+
+impl FrameExposure {
+    fn missing() -> Self {
+        FrameExposure {
+            log_gain: [f64::NAN; 3],
+            log_luminance_gain: f64::NAN,
+            sigma: f64::INFINITY,
+            blocks: 0,
+        }
+    }
+
+    fn usable(&self) -> bool {
+        self.blocks > 0
+            && self.log_luminance_gain.is_finite()
+            && self.log_gain.iter().all(|v| v.is_finite())
+    }
+}
+
+/// What the walk's frames were exposed with.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct WalkExposure {
+    /// Each frame as measured against its probe, in walk order.
+    pub measured: Vec<FrameExposure>,
+    /// Each frame's change of log gain from the frame before (the first
+    /// frame's is unused).
+    pub relative: Vec<FrameExposure>,
+    /// Each frame's gain per channel after the walk pass (linear, not log).
+    pub gain: Vec<[f32; 3]>,
+    /// Each frame's uncertainty (one sigma, natural log) after the walk pass.
+    pub sigma: Vec<f64>,
+    /// Frames whose probe measurement the walk down-weighted (an outlier).
+    pub outliers: Vec<usize>,
+    /// Frames with no usable probe measurement, carried by their neighbours.
+    pub filled: Vec<usize>,
+    /// Spread of the frames' luminance log gains (interquartile range) against
+    /// their median uncertainty: above 3, the exposure moved beyond the
+    /// measurement's noise.
+    pub spread_over_noise: f64,
+}
+
+impl WalkExposure {
+    /// True when the frames' gains moved beyond their noise (per-frame gains are
+    /// then worth using).
+    pub fn varies(&self) -> bool {
+        self.spread_over_noise > 3.0
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn iqr(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.len() < 2 {
+        return 0.0;
+    }
+    let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    q(0.75) - q(0.25)
+}
+
+const REC709: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// One frame's exposure against the probe turned into its orientation
+/// (`probe_in_frame`, the frame's size).
+pub fn frame_exposure(
+    sdr: &SdrImage,
+    probe_in_frame: &HdrImage,
+    response: &Response,
+    opts: &ExposureOptions,
+) -> FrameExposure {
+    let (w, h) = (sdr.width(), sdr.height());
+    let b = opts.blocks.block.max(1);
+    if probe_in_frame.width() != w || probe_in_frame.height() != h || w < b || h < b {
+        return FrameExposure::missing();
+    }
+    let decode: Vec<f64> = (0..256)
+        .map(|c| response.decode(c as f32 / 255.0) as f64)
+        .collect();
+    let (lo, hi) = (opts.blocks.low_code, opts.blocks.high_code);
+    let (bw, bh) = (w / b, h / b);
+    let mut votes: [Vec<f64>; 4] = Default::default();
+    for by in 0..bh {
+        'block: for bx in 0..bw {
+            let (mut f, mut p) = ([0.0f64; 3], [0.0f64; 3]);
+            for y in by * b..(by + 1) * b {
+                for x in bx * b..(bx + 1) * b {
+                    let c = sdr.get(x, y);
+                    if c.iter().any(|&v| v < lo || v > hi) {
+                        continue 'block;
+                    }
+                    let r = probe_in_frame.get(x, y);
+                    for k in 0..3 {
+                        f[k] += decode[c[k] as usize];
+                        p[k] += r[k] as f64;
+                    }
+                }
+            }
+            if !p.iter().all(|&v| v > 0.0 && v.is_finite()) {
+                continue;
+            }
+            let ratios = [(f[0] / p[0]).ln(), (f[1] / p[1]).ln(), (f[2] / p[2]).ln()];
+            let (fl, pl): (f64, f64) = (0..3).fold((0.0, 0.0), |(a, c), k| {
+                (a + REC709[k] * f[k], c + REC709[k] * p[k])
+            });
+            let lum = (fl / pl).ln();
+            if ratios.iter().all(|v| v.is_finite()) && lum.is_finite() {
+                for k in 0..3 {
+                    votes[k].push(ratios[k]);
+                }
+                votes[3].push(lum);
+            }
+        }
+    }
+    let n = votes[3].len();
+    if n == 0 {
+        return FrameExposure::missing();
+    }
+    let sigma = (1.2533 * iqr(&mut votes[3].clone()) / 1.349 / (n as f64).sqrt()).max(opts.floor);
+    let [r, g, bl, l] = &mut votes;
+    FrameExposure {
+        log_gain: [median(r), median(g), median(bl)],
+        log_luminance_gain: median(l),
+        sigma,
+        blocks: n,
+    }
+}
+
+/// Huber's threshold, in sigmas: a residual beyond it weighs as if it were
+/// there (a probe comparison off by parallax, a person walking past).
+const HUBER: f64 = 2.0;
+
+/// Solves, per channel, the least squares of the walk (module docs): each
+/// frame's log gain `x` near its probe measurement and `x[k] - x[k-1]` near the
+/// relative measurement of frame `k` against frame `k - 1`, each by inverse
+/// variance, reweighted (Huber) so outliers lose their pull. `relative[0]` is
+/// unused.
+pub fn along_walk(
+    measured: &[FrameExposure],
+    relative: &[FrameExposure],
+    opts: &ExposureOptions,
+) -> WalkExposure {
+    let n = measured.len();
+    let var = |m: &FrameExposure, floor: f64| m.sigma.max(floor).powi(2);
+    let a0: Vec<f64> = measured
+        .iter()
+        .map(|m| {
+            if m.usable() {
+                1.0 / var(m, opts.floor)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let b0: Vec<f64> = (0..n)
+        .map(|k| match relative.get(k) {
+            Some(r) if k > 0 && r.usable() => 1.0 / var(r, opts.relative_floor),
+            _ => 0.0,
+        })
+        .collect();
+    // Frames of a chain with no probe measurement anywhere are held, weakly,
+    // at the walk's median so the system stays solvable.
+    let mut lums: Vec<f64> = measured
+        .iter()
+        .filter(|m| m.usable())
+        .map(|m| m.log_luminance_gain)
+        .collect();
+    let mut sig: Vec<f64> = measured
+        .iter()
+        .filter(|m| m.usable())
+        .map(|m| m.sigma)
+        .collect();
+    let mut per: Vec<Vec<f64>> = (0..3)
+        .map(|c| {
+            measured
+                .iter()
+                .filter(|m| m.usable())
+                .map(|m| m.log_gain[c])
+                .collect()
+        })
+        .collect();
+    let prior: Vec<f64> = per.iter_mut().map(|v| median(v)).collect();
+    let mut gain = vec![[f32::NAN; 3]; n];
+    let mut sigma = vec![f64::INFINITY; n];
+    let mut down = vec![false; n];
+    for c in 0..3 {
+        let p: Vec<f64> = measured.iter().map(|m| m.log_gain[c]).collect();
+        let r: Vec<f64> = (0..n)
+            .map(|k| relative.get(k).map_or(0.0, |m| m.log_gain[c]))
+            .collect();
+        let (mut a, mut b) = (a0.clone(), b0.clone());
+        let mut x = vec![0.0f64; n];
+        for _ in 0..6 {
+            x = solve_chain(&a, &b, &p, &r, prior[c]);
+            // Reweight: residuals beyond HUBER sigmas pull as if at HUBER.
+            for k in 0..n {
+                if a0[k] > 0.0 {
+                    let e = (x[k] - p[k]).abs() * a0[k].sqrt();
+                    a[k] = a0[k] * if e > HUBER { HUBER / e } else { 1.0 };
+                }
+                if k > 0 && b0[k] > 0.0 {
+                    let e = (x[k] - x[k - 1] - r[k]).abs() * b0[k].sqrt();
+                    b[k] = b0[k] * if e > HUBER { HUBER / e } else { 1.0 };
+                }
+            }
+        }
+        for k in 0..n {
+            gain[k][c] = x[k].exp() as f32;
+            if c == 1 {
+                let prec = a[k] + b[k] + b.get(k + 1).copied().unwrap_or(0.0);
+                sigma[k] = if prec > 0.0 {
+                    prec.sqrt().recip()
+                } else {
+                    f64::INFINITY
+                };
+                down[k] = a0[k] > 0.0 && a[k] < 0.999 * a0[k];
+            }
+        }
+    }
+    let noise = median(&mut sig);
+    let spread = iqr(&mut lums);
+    WalkExposure {
+        measured: measured.to_vec(),
+        relative: relative.to_vec(),
+        gain,
+        sigma,
+        outliers: (0..n).filter(|&k| down[k]).collect(),
+        filled: (0..n).filter(|&k| a0[k] == 0.0).collect(),
+        spread_over_noise: if noise > 0.0 { spread / noise } else { 0.0 },
+    }
+}
+
+/// Minimises `sum a[k] (x[k] - p[k])^2 + sum b[k] (x[k] - x[k-1] - r[k])^2`
+/// (plus a 1e-9 pull towards `prior`, so a chain with no `a` stays solvable):
+/// a tridiagonal system, solved by forward elimination.
+fn solve_chain(a: &[f64], b: &[f64], p: &[f64], r: &[f64], prior: f64) -> Vec<f64> {
+    let n = a.len();
+    let eps = 1e-9;
+    let mut diag = vec![0.0f64; n];
+    let mut rhs = vec![0.0f64; n];
+    for k in 0..n {
+        let pk = if a[k] > 0.0 { p[k] } else { 0.0 };
+        diag[k] = a[k] + eps;
+        rhs[k] = a[k] * pk + eps * prior;
+        if k > 0 && b[k] > 0.0 {
+            diag[k] += b[k];
+            rhs[k] += b[k] * r[k];
+        }
+        if k + 1 < n && b[k + 1] > 0.0 {
+            diag[k] += b[k + 1];
+            rhs[k] -= b[k + 1] * r[k + 1];
+        }
+    }
+    // Off-diagonal between k-1 and k: -b[k]. Thomas algorithm.
+    let mut c = vec![0.0f64; n];
+    let mut d = vec![0.0f64; n];
+    for k in 0..n {
+        let off = if k > 0 { -b[k] } else { 0.0 };
+        let den = diag[k] - if k > 0 { off * c[k - 1] } else { 0.0 };
+        let up = if k + 1 < n { -b[k + 1] } else { 0.0 };
+        c[k] = up / den;
+        d[k] = (rhs[k] - if k > 0 { off * d[k - 1] } else { 0.0 }) / den;
+    }
+    let mut x = vec![0.0f64; n];
+    for k in (0..n).rev() {
+        x[k] = d[k] - if k + 1 < n { c[k] * x[k + 1] } else { 0.0 };
+    }
+    x
+}
+
+/// Every frame's exposure and white balance against its nearest probe, then the
+/// walk pass. Fails with an error naming the scene when no frame has a
+/// well-exposed block seen by a probe.
+pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposure> {
+    let mut probes: Vec<Option<HdrImage>> = vec![None; scene.probes.len()];
+    let mut measured = Vec::with_capacity(scene.frames.len());
+    let mut relative = Vec::with_capacity(scene.frames.len());
+    let mut distances = Vec::with_capacity(scene.frames.len());
+    let mut before: Option<(HdrImage, crate::scene::Pose)> = None;
+    let decode: Vec<f32> = (0..256)
+        .map(|c| scene.response.decode(c as f32 / 255.0))
+        .collect();
+    let (lo, hi) = (opts.blocks.low_code, opts.blocks.high_code);
+    for f in &scene.frames {
+        let sdr = io::read_sdr(&f.sdr)?;
+        // The frame before, decoded (badly exposed pixels NaN, so no block
+        // holding one votes) and turned into this frame's orientation.
+        relative.push(match &before {
+            Some((prev, pose)) if prev.width() == sdr.width() && prev.height() == sdr.height() => {
+                let turned = rotate(prev, f.pose.from_other(pose), sdr.width(), sdr.height());
+                frame_exposure(&sdr, &turned, &scene.response, opts)
+            }
+            _ => FrameExposure::missing(),
+        });
+        let dec = HdrImage::from_fn(sdr.width(), sdr.height(), |x, y| {
+            let c = sdr.get(x, y);
+            if c.iter().all(|&v| v >= lo && v <= hi) {
+                c.map(|v| decode[v as usize])
+            } else {
+                [f32::NAN; 3]
+            }
+        });
+        before = Some((dec, f.pose));
+        let k = scene.nearest_probe(f.pose.position);
+        if probes[k].is_none() {
+            let p = &scene.probes[k];
+            let path = p.hdr.as_ref().ok_or_else(|| {
+                Error::Invalid(format!(
+                    "per-frame exposure needs probe {}'s HDR (merge its brackets first)",
+                    p.id
+                ))
+            })?;
+            let mut img = io::read_hdr(path)?;
+            img.repair_invalid();
+            probes[k] = Some(img);
+        }
+        let probe = probes[k].as_ref().expect("loaded above");
+        let r = f.pose.from_other(&scene.probes[k].pose);
+        let turned = rotate(probe, r, sdr.width(), sdr.height());
+        let mut m = frame_exposure(&sdr, &turned, &scene.response, opts);
+        distances.push(f.pose.position.distance(scene.probes[k].pose.position) as f64);
+        m.sigma = m.sigma.max(opts.floor);
+        measured.push(m);
+    }
+    // Parallax grows with the distance from the probe: a frame twice the walk's
+    // median distance from its probe is trusted half as much in sigma (the
+    // ratio keeps it free of the poses' unit).
+    let mut sorted = distances.clone();
+    let reference = median(&mut sorted);
+    if reference > 0.0 && reference.is_finite() {
+        for (m, d) in measured.iter_mut().zip(&distances) {
+            m.sigma *= 1.0 + opts.parallax * d / reference;
+        }
+    }
+    if !measured.iter().any(FrameExposure::usable) {
+        return Err(Error::Invalid(format!(
+            "{}: no frame has a well-exposed region a probe also sees, so no frame's exposure can be \
+             measured against the probes",
+            scene.root.display()
+        )));
+    }
+    Ok(along_walk(&measured, &relative, opts))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(log: f64, sigma: f64) -> FrameExposure {
+        FrameExposure {
+            log_gain: [log + 0.1, log, log - 0.1],
+            log_luminance_gain: log,
+            sigma,
+            blocks: 50,
+        }
+    }
+
+    #[test]
+    fn a_constant_frame_against_a_constant_probe_gives_their_ratio_per_channel() {
+        let c = [100u8, 128, 160];
+        let sdr = SdrImage::from_vec(32, 16, c.repeat(32 * 16)).unwrap();
+        let probe = HdrImage::from_fn(32, 16, |_, _| [0.5, 0.25, 0.125]);
+        let r = Response::Srgb;
+        let e = frame_exposure(&sdr, &probe, &r, &ExposureOptions::default());
+        assert_eq!(e.blocks, 8);
+        for (k, p) in [0.5f64, 0.25, 0.125].iter().enumerate() {
+            let want = (r.decode(c[k] as f32 / 255.0) as f64 / p).ln();
+            assert!(
+                (e.log_gain[k] - want).abs() < 1e-6,
+                "{k}: {} vs {want}",
+                e.log_gain[k]
+            );
+        }
+        assert_eq!(e.sigma, ExposureOptions::default().floor);
+        // All clipped: nothing measured.
+        let sdr = SdrImage::from_vec(32, 16, vec![255; 32 * 16 * 3]).unwrap();
+        let e = frame_exposure(&sdr, &probe, &r, &ExposureOptions::default());
+        assert!(!e.usable());
+    }
+
+    fn step(d: f64, sigma: f64) -> FrameExposure {
+        FrameExposure {
+            log_gain: [d; 3],
+            log_luminance_gain: d,
+            sigma,
+            blocks: 50,
+        }
+    }
+
+    /// A walk of `n` frames whose true log gain is `truth(k)`, measured
+    /// against the probes with `probe_err(k)` added and frame to frame exactly.
+    fn walk(
+        n: usize,
+        truth: impl Fn(usize) -> f64,
+        probe_err: impl Fn(usize) -> f64,
+    ) -> WalkExposure {
+        let m: Vec<FrameExposure> = (0..n)
+            .map(|k| frame(truth(k) + probe_err(k), 0.05))
+            .collect();
+        let r: Vec<FrameExposure> = (0..n)
+            .map(|k| step(if k == 0 { 0.0 } else { truth(k) - truth(k - 1) }, 0.01))
+            .collect();
+        along_walk(&m, &r, &ExposureOptions::default())
+    }
+
+    #[test]
+    fn one_wrong_frame_is_mended_a_jump_is_kept_and_a_gap_is_filled() {
+        // A smooth walk at log gain 0 whose frame 3 the probe puts 1 (1.44 EV)
+        // off: the frame-to-frame steps keep it with its neighbours.
+        let w = walk(8, |_| 0.0, |k| if k == 3 { 1.0 } else { 0.0 });
+        assert!(w.outliers.contains(&3), "{:?}", w.outliers);
+        for k in 0..8 {
+            assert!(
+                (w.gain[k][1] as f64).ln().abs() < 0.03,
+                "{k}: {:?}",
+                w.gain[k]
+            );
+        }
+        // A jump at frame 4 (the meter moved): both sides keep their level.
+        let w = walk(8, |k| if k < 4 { 0.0 } else { 1.0 }, |_| 0.0);
+        assert!(w.outliers.is_empty(), "{:?}", w.outliers);
+        for k in 0..8 {
+            let want = if k < 4 { 0.0 } else { 1.0 };
+            assert!(
+                ((w.gain[k][1] as f64).ln() - want).abs() < 1e-4,
+                "{k}: {:?}",
+                w.gain[k]
+            );
+        }
+        // The channels keep their balance.
+        assert!(((w.gain[5][0] as f64).ln() - 1.1).abs() < 1e-4);
+        assert!(((w.gain[5][2] as f64).ln() - 0.9).abs() < 1e-4);
+        // Probe errors that parallax makes (a bias on a stretch of the walk)
+        // are spread over the walk: a 0.15 bias on 3 of 20 frames moves no
+        // frame by a third of it, and the walk by a sixth of it on average.
+        let w = walk(
+            20,
+            |k| (k as f64 * 0.3).sin() * 0.5,
+            |k| if (7..10).contains(&k) { -0.15 } else { 0.0 },
+        );
+        let mut sum = 0.0;
+        for k in 0..20 {
+            let got = (w.gain[k][1] as f64).ln();
+            let want = (k as f64 * 0.3).sin() * 0.5;
+            assert!((got - want).abs() < 0.05, "{k}: {got} vs {want}");
+            sum += (got - want).abs();
+        }
+        assert!(sum / 20.0 < 0.025, "{}", sum / 20.0);
+        // A frame with nothing measured against its probe is carried by its
+        // neighbours.
+        let m: Vec<FrameExposure> = (0..4)
+            .map(|k| {
+                if k == 0 {
+                    FrameExposure::missing()
+                } else {
+                    frame(0.2, 0.05)
+                }
+            })
+            .collect();
+        let r: Vec<FrameExposure> = (0..4).map(|_| step(0.0, 0.01)).collect();
+        let w = along_walk(&m, &r, &ExposureOptions::default());
+        assert_eq!(w.filled, vec![0]);
+        assert!(
+            ((w.gain[0][1] as f64).ln() - 0.2).abs() < 1e-4,
+            "{:?}",
+            w.gain[0]
+        );
+        assert!(!w.varies());
+    }
+}
