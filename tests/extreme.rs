@@ -137,6 +137,7 @@ fn scene_of(s: &SynthScene) -> Scene {
                 pose: pose_of(&f.pose),
                 sdr: PathBuf::from(format!("/nonexistent/{}.png", f.pose.id)),
                 ground_truth: None,
+                gain: None,
             })
             .collect(),
         response: s.response.clone(),
@@ -185,7 +186,7 @@ fn predict(
     let frame = &scene.frames[fi];
     let mut used = scene.probes_by_distance(frame.pose.position);
     used.truncate(method.probes_needed());
-    let lin = pipeline::linearize(sdr, scene);
+    let lin = pipeline::linearize(sdr, scene, frame);
     let pairs = pipeline::LightPairs::default();
     let access = pipeline::ProbeAccess {
         get: &get,
@@ -511,7 +512,7 @@ fn all_black_and_all_saturated_frames_give_finite_probes() {
     let white = s.response.decode(1.0) / s.path_gain;
     for code in [0u8, 255] {
         let sdr = SdrImage::from_vec(w, h, vec![code; w * h * 3]).unwrap();
-        let lin = pipeline::linearize(&sdr, &scene);
+        let lin = pipeline::linearize(&sdr, &scene, &scene.frames[0]);
         for method in METHODS {
             let r = predict(&scene, 0, &sdr, &probes, method);
             let (out, warp, _, _) = r.unwrap_or_else(|e| panic!("{method:?} on code {code}: {e}"));
@@ -587,7 +588,7 @@ fn invalid_samples_are_rejected_or_repaired_and_said_so() {
     let s = small_world(128, 2, 5);
     let scene = scene_of(&s);
     let sdr = &s.frames[0].sdr;
-    let lin = pipeline::linearize(sdr, &scene);
+    let lin = pipeline::linearize(sdr, &scene, &scene.frames[0]);
     let frame_pose = scene.frames[0].pose;
     let mut broken = s.probes[0].hdr.clone();
     broken.set(10, 10, [f32::NAN, 1.0, 1.0]);
@@ -711,7 +712,7 @@ fn featureless_probe_faces_fall_back_cleanly() {
         [1.0 + 0.2 * d.y, 1.0 + 0.1 * d.x, 1.2]
     });
     let sdr = &s.frames[0].sdr;
-    let lin = pipeline::linearize(sdr, &scene);
+    let lin = pipeline::linearize(sdr, &scene, &scene.frames[0]);
     let pp = PreparedProbe::new(
         Arc::new(probe.clone()),
         scene.probes[0].pose,
@@ -1145,7 +1146,7 @@ fn non_orthonormal_rotations_are_repaired_or_rejected() {
     let mut pose = scene.frames[0].pose;
     pose.world_from_camera =
         pose.world_from_camera * Mat3::from_cols(Vec3::X, Vec3::new(0.4, 1.0, 0.0), Vec3::Z);
-    let lin = pipeline::linearize(&s.frames[0].sdr, &scene);
+    let lin = pipeline::linearize(&s.frames[0].sdr, &scene, &scene.frames[0]);
     let pp = PreparedProbe::new(
         Arc::new(s.probes[0].hdr.clone()),
         scene.probes[0].pose,

@@ -54,8 +54,9 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
             );
         }
         println!(
-            "{}: exposure spread {:.1}x its noise: {}",
+            "{}: exposure moved {:.2} EV along the walk (measurements' spread {:.1}x their noise): {}",
             scene.name,
+            w.swing_ev,
             w.spread_over_noise,
             if w.varies() {
                 "it moved along the walk (per-frame gains are worth using)"
@@ -77,6 +78,7 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
             let doc = serde_json::json!({
                 "scene_gain": scene.path_gain,
                 "spread_over_noise": w.spread_over_noise,
+                "swing_ev": w.swing_ev,
                 "varies": w.varies(),
                 "outliers": w.outliers,
                 "filled": w.filled,

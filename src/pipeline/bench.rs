@@ -148,7 +148,7 @@ pub fn bench_scored(
         // run: holding every frame would dominate the peak memory at large sizes.
         let load = |f: &crate::scene::Frame| -> Result<_> {
             let sdr = load_frame(f, params.size)?;
-            let lin = linearize(&sdr, scene);
+            let lin = linearize(&sdr, scene, f);
             Ok((sdr, lin))
         };
         let mut inputs = Vec::new();

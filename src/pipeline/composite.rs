@@ -229,7 +229,7 @@ pub fn composite(
         let (probe, warning) = io::read_hdr_repaired(&probe_path)?;
         report.warnings.extend(warning);
         let sdr = load_frame(frame, None)?;
-        let lin = linearize(&sdr, scene);
+        let lin = linearize(&sdr, scene, frame);
         match composite_frame(
             &model,
             &probe,
@@ -239,7 +239,7 @@ pub fn composite(
             opts,
         )? {
             Some(img) => {
-                let enc = linear_to_sdr(&img, &scene.response, scene.path_gain);
+                let enc = linear_to_sdr(&img, &scene.response, scene.frame_luminance_gain(frame));
                 io::write_sdr(&png, &enc)?;
                 report.frames.push(png);
             }

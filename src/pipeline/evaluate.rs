@@ -211,7 +211,10 @@ fn evaluate_scaled(
                 score(label, &pred)?;
             }
             score(BASELINE_PROBE, &nearest_probe_baseline(scene, i, w, h)?)?;
-            score(BASELINE_SDR, &linearize(&load_frame(frame, None)?, scene))?;
+            score(
+                BASELINE_SDR,
+                &linearize(&load_frame(frame, None)?, scene, frame),
+            )?;
             let pi = scene.nearest_probe(frame.pose.position);
             let scores = FrameScores {
                 id: frame.id.clone(),

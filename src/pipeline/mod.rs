@@ -254,10 +254,14 @@ pub fn resize_sdr(sdr: &SdrImage, w: usize, h: usize) -> SdrImage {
     SdrImage::from_vec(w, h, crate::tonemap::quantize(r.data())).expect("size matches")
 }
 
-/// Radiance of an SDR frame: `response⁻¹(code / 255) / gain` (clipped pixels stay at
-/// the white point's radiance).
-pub fn linearize(sdr: &SdrImage, scene: &Scene) -> HdrImage {
-    io::sdr_to_linear(sdr, &scene.response, scene.path_gain)
+/// Radiance of an SDR frame: `response⁻¹(code / 255) / gain`, with `frame`'s own
+/// gain per channel where it has one (clipped pixels stay at the white point's
+/// radiance).
+pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
+    match frame.gain {
+        None => io::sdr_to_linear(sdr, &scene.response, scene.path_gain),
+        Some(g) => io::sdr_to_linear_rgb(sdr, &scene.response, g),
+    }
 }
 
 /// Reads a probe's HDR panorama, repairs invalid samples and resamples it.
@@ -346,7 +350,7 @@ fn frame_inputs(
         file_stamp(&frame.sdr),
         format!("{:?}", frame.pose),
         // The frame's radiometry: a new response or gain changes every pixel.
-        format!("{:?} {}", scene.response, scene.path_gain),
+        format!("{:?} {} {:?}", scene.response, scene.path_gain, frame.gain),
         program_stamp().to_string(),
     ];
     for &u in &used {
@@ -382,11 +386,11 @@ fn witness_frames<'s>(scene: &'s Scene, i: usize, params: &RunParams) -> Vec<&'s
 
 /// Radiance of the clip code in the frames' linearised units: the least a
 /// clipped channel holds.
-fn white_point(scene: &Scene, params: &RunParams) -> f32 {
+fn white_point(scene: &Scene, frame: &Frame, params: &RunParams) -> f32 {
     scene
         .response
         .decode(params.flow.censor.clip_code as f32 / 255.0)
-        / scene.path_gain
+        / scene.frame_luminance_gain(frame)
 }
 
 /// The witnesses of frame `i` at the working size, read from their codes
@@ -397,12 +401,13 @@ fn load_witnesses(scene: &Scene, i: usize, params: &RunParams) -> Vec<Witness> {
     if frames.is_empty() {
         return Vec::new();
     }
-    let radiance = scene.response.decode_lut().map(|v| v / scene.path_gain);
-    let white = white_point(scene, params);
+    let white = white_point(scene, &scene.frames[i], params);
     frames
         .into_iter()
         .filter_map(|n| {
             let sdr = load_frame(n, params.size).ok()?;
+            let g = scene.frame_luminance_gain(n);
+            let radiance = scene.response.decode_lut().map(|v| v / g);
             Some(Witness::from_codes(&sdr, &radiance, white, n.pose))
         })
         .collect()
@@ -556,7 +561,7 @@ fn run_named(
             .unwrap_or((sdr.width(), sdr.height()));
         note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
         let t = Instant::now();
-        let lin = linearize(&sdr, scene);
+        let lin = linearize(&sdr, scene, frame);
         let witnesses = load_witnesses(scene, i, params);
         let (img, warp_report, flow_report, fusion_report) = predict_held(
             scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
@@ -838,7 +843,7 @@ fn predict_held(
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) =
             predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[], &[])?;
-        let white = white_point(scene, params);
+        let white = white_point(scene, frame, params);
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
         let probes: Vec<_> = used
@@ -946,7 +951,7 @@ fn predict_held(
                     &mut warped,
                     &unwarped,
                     &scene.response,
-                    scene.path_gain,
+                    scene.frame_luminance_gain(frame),
                     &params.flow,
                 )?;
             }
@@ -967,7 +972,7 @@ fn predict_held(
                 lin,
                 &sources,
                 &scene.response,
-                scene.path_gain,
+                scene.frame_luminance_gain(frame),
                 &params.flow,
             )?;
             r.restored_light_px = restored;

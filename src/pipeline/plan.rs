@@ -743,6 +743,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                 pose,
                 sdr: f.clone(),
                 ground_truth: None,
+                gain: None,
             }),
             None => missing.push(format!("frame {id}")),
         }

@@ -232,7 +232,7 @@ pub fn render_eval(
         ));
         sources.push((
             BASELINE_SDR.to_string(),
-            linearize(&load_frame(frame, None)?, scene),
+            linearize(&load_frame(frame, None)?, scene, frame),
         ));
         let pi = scene.nearest_probe(frame.pose.position);
         let dist = crate::scene::distance_m(scene.probes[pi].pose.position, frame.pose.position);

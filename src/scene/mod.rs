@@ -85,6 +85,10 @@ pub struct Frame {
     pub sdr: PathBuf,
     /// True HDR at this pose, for evaluation only (never read by a method).
     pub ground_truth: Option<PathBuf>,
+    /// This frame's own exposure gain per channel (a camera with auto-exposure
+    /// and white balance: `lumiprobe run --calibrate --frame-exposure`);
+    /// `None`: the scene's `path_gain`.
+    pub gain: Option<[f32; 3]>,
 }
 
 /// A whole capture.
@@ -152,6 +156,30 @@ struct RawCamera {
 }
 
 impl Scene {
+    /// The exposure gain per channel frame `f` was taken with: its own
+    /// ([`Frame::gain`]) or the scene's `path_gain`.
+    pub fn frame_gain(&self, f: &Frame) -> [f32; 3] {
+        f.gain.unwrap_or([self.path_gain; 3])
+    }
+
+    /// One gain for frame `f`: the gain that gives a pixel clipped in every
+    /// channel the luminance [`Scene::frame_gain`]'s channels give it
+    /// (`1 / sum(w_c / g_c)`, Rec. 709 weights); the scene's `path_gain` for a
+    /// frame without its own.
+    pub fn frame_luminance_gain(&self, f: &Frame) -> f32 {
+        match f.gain {
+            None => self.path_gain,
+            Some(g) => {
+                let s = 0.2126 / g[0] + 0.7152 / g[1] + 0.0722 / g[2];
+                if s.is_finite() && s > 0.0 {
+                    1.0 / s
+                } else {
+                    self.path_gain
+                }
+            }
+        }
+    }
+
     /// Loads `dir/poses.json` (or a `poses.json` path given directly).
     pub fn load(dir: &Path) -> Result<Scene> {
         let (root, file) = if dir.is_file() {
@@ -265,6 +293,7 @@ impl Scene {
                 pose,
                 sdr,
                 ground_truth: e.ground_truth.as_deref().map(resolve),
+                gain: None,
             });
         }
         if probes.is_empty() {

@@ -209,6 +209,20 @@ pub fn sdr_to_linear(img: &SdrImage, response: &Response, gain: f32) -> HdrImage
         .unwrap_or_else(|_| HdrImage::new(img.width(), img.height()))
 }
 
+/// [`sdr_to_linear`] with a gain per channel (a frame's own exposure and white
+/// balance): channel `c` is `response⁻¹(code / 255) / gain[c]`.
+pub fn sdr_to_linear_rgb(img: &SdrImage, response: &Response, gain: [f32; 3]) -> HdrImage {
+    let lut = response.decode_lut();
+    let data = img
+        .data()
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| lut[c as usize] / gain[i % 3])
+        .collect();
+    HdrImage::from_vec(img.width(), img.height(), data)
+        .unwrap_or_else(|_| HdrImage::new(img.width(), img.height()))
+}
+
 /// 8-bit frame a camera with `response` would record from linear radiance at
 /// exposure `gain`: `round(255 * response.encode(v * gain))`.
 pub fn linear_to_sdr(img: &HdrImage, response: &Response, gain: f32) -> SdrImage {
