@@ -7,6 +7,7 @@
 #[allow(dead_code)]
 mod data;
 
+use std::ffi::OsString;
 use std::path::Path;
 use std::process::Command;
 
@@ -16,6 +17,21 @@ fn python() -> &'static str {
     } else {
         "python3"
     }
+}
+
+/// Runs `lumiprobe` with `args`, asserts that it succeeds and returns its
+/// stdout.
+fn lumiprobe(args: &[OsString]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "lumiprobe {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 fn json(path: &Path) -> serde_json::Value {
@@ -50,18 +66,13 @@ fn each_frames_exposure_is_recovered_from_an_auto_exposed_h264_walk() {
     assert!(swing > 0.5, "the variant's exposure must move: {evs:?}");
 
     let gains = tmp.path().join("gains.json");
-    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
-        .args(["calibrate", "--per-frame", "--json"])
-        .arg(&gains)
-        .arg(&variant)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = lumiprobe(&[
+        "calibrate".into(),
+        "--per-frame".into(),
+        "--json".into(),
+        gains.clone().into(),
+        variant.clone().into(),
+    ]);
     assert!(stdout.contains("it moved along the walk"), "{stdout}");
     let got = json(&gains);
     assert_eq!(got["varies"], true);
@@ -95,38 +106,26 @@ fn each_frames_exposure_is_recovered_from_an_auto_exposed_h264_walk() {
     let mut irr = Vec::new();
     for mode in ["off", "on"] {
         let pred = tmp.path().join(format!("fusion_{mode}"));
-        let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
-            .args([
-                "run",
-                "--method",
-                "fusion",
-                "--calibrate",
-                "--frame-exposure",
-                mode,
-                "-q",
-                "--out",
-            ])
-            .arg(&pred)
-            .arg(&variant)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{mode}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
-            .args(["eval", "--json", "--pred"])
-            .arg(format!("fusion={}", pred.display()))
-            .arg(&variant)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        lumiprobe(&[
+            "run".into(),
+            "--method".into(),
+            "fusion".into(),
+            "--calibrate".into(),
+            "-q".into(),
+            "--frame-exposure".into(),
+            mode.into(),
+            "--out".into(),
+            pred.clone().into(),
+            variant.clone().into(),
+        ]);
+        let stdout = lumiprobe(&[
+            "eval".into(),
+            "--json".into(),
+            "--pred".into(),
+            format!("fusion={}", pred.display()).into(),
+            variant.clone().into(),
+        ]);
+        let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
         let row = &v["table"]["rows"][0];
         assert_eq!(row["label"], "fusion");
         let mean = row["mean"]["irradiance_rel_err"].as_f64().unwrap();

@@ -136,6 +136,34 @@ pub fn frame_log_gain(
     }
 }
 
+/// The probe nearest frame `f`, read once into `probes` (one slot per probe of
+/// the scene), turned into the frame's orientation at `w` x `h`; with its index.
+/// Fails, naming the probe, when it has no HDR file yet.
+pub(crate) fn nearest_probe_in_frame(
+    scene: &Scene,
+    f: &crate::scene::Frame,
+    probes: &mut [Option<HdrImage>],
+    w: usize,
+    h: usize,
+) -> Result<(HdrImage, usize)> {
+    let k = scene.nearest_probe(f.pose.position);
+    if probes[k].is_none() {
+        let p = &scene.probes[k];
+        let path = p.hdr.as_ref().ok_or_else(|| {
+            Error::Invalid(format!(
+                "calibration needs probe {}'s HDR (merge its brackets first)",
+                p.id
+            ))
+        })?;
+        let mut img = io::read_hdr(path)?;
+        img.repair_invalid();
+        probes[k] = Some(img);
+    }
+    let probe = probes[k].as_ref().expect("loaded above");
+    let r = f.pose.from_other(&scene.probes[k].pose);
+    Ok((rotate(probe, r, w, h), k))
+}
+
 /// Recovers the frames' exposure gain relative to the scene's HDR probes (see the
 /// module docs). Needs the probes' HDR files and the frames' poses; fails with an
 /// error naming the scene when no frame has a well-exposed block.
@@ -150,22 +178,7 @@ pub fn calibrate_gain(scene: &Scene, opts: &CalibrateOptions) -> Result<GainEsti
     let mut probes: Vec<Option<HdrImage>> = vec![None; scene.probes.len()];
     for (i, f) in scene.frames.iter().enumerate().step_by(step) {
         let sdr = io::read_sdr(&f.sdr)?;
-        let k = scene.nearest_probe(f.pose.position);
-        if probes[k].is_none() {
-            let p = &scene.probes[k];
-            let path = p.hdr.as_ref().ok_or_else(|| {
-                Error::Invalid(format!(
-                    "calibration needs probe {}'s HDR (merge its brackets first)",
-                    p.id
-                ))
-            })?;
-            let mut img = io::read_hdr(path)?;
-            img.repair_invalid();
-            probes[k] = Some(img);
-        }
-        let probe = probes[k].as_ref().expect("loaded above");
-        let r = f.pose.from_other(&scene.probes[k].pose);
-        let turned = rotate(probe, r, sdr.width(), sdr.height());
+        let (turned, _) = nearest_probe_in_frame(scene, f, &mut probes, sdr.width(), sdr.height())?;
         if let Some(v) = frame_log_gain(&sdr, &turned, &scene.response, opts) {
             per_frame[i] = v as f32;
         }

@@ -28,7 +28,7 @@
 //! frame-to-frame step, loses its pull. A frame with no usable block keeps the
 //! chain through its neighbours.
 
-use super::calibrate::CalibrateOptions;
+use super::calibrate::{nearest_probe_in_frame, CalibrateOptions};
 use crate::error::{Error, Result};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::Scene;
@@ -420,22 +420,7 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
             }
         });
         before = Some((dec, f.pose));
-        let k = scene.nearest_probe(f.pose.position);
-        if probes[k].is_none() {
-            let p = &scene.probes[k];
-            let path = p.hdr.as_ref().ok_or_else(|| {
-                Error::Invalid(format!(
-                    "per-frame exposure needs probe {}'s HDR (merge its brackets first)",
-                    p.id
-                ))
-            })?;
-            let mut img = io::read_hdr(path)?;
-            img.repair_invalid();
-            probes[k] = Some(img);
-        }
-        let probe = probes[k].as_ref().expect("loaded above");
-        let r = f.pose.from_other(&scene.probes[k].pose);
-        let turned = rotate(probe, r, sdr.width(), sdr.height());
+        let (turned, k) = nearest_probe_in_frame(scene, f, &mut probes, sdr.width(), sdr.height())?;
         let mut m = frame_exposure(&sdr, &turned, &scene.response, opts);
         distances.push(f.pose.position.distance(scene.probes[k].pose.position) as f64);
         m.sigma = m.sigma.max(opts.floor);

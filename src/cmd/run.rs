@@ -12,7 +12,8 @@ pub enum FrameExposure {
     Off,
     /// Each frame's own gain and white balance.
     On,
-    /// Each frame's own when the frames' gains moved beyond their noise.
+    /// Each frame's own when the walk's solved exposure moved by more than
+    /// `capture::exposure::MIN_SWING_EV`.
     Auto,
 }
 
@@ -43,10 +44,8 @@ pub struct RunArgs {
     /// calibrate`) instead of trusting the scene file's.
     #[arg(long)]
     pub calibrate: bool,
-    /// With --calibrate: each frame's own exposure and white balance (a camera
-    /// with auto-exposure; `lumiprobe calibrate --per-frame`): `on`, `off`, or
-    /// `auto` (used when the frames' gains moved beyond their noise).
-    #[arg(long, value_enum, default_value_t = FrameExposure::Off, requires = "calibrate")]
+    /// With --calibrate, each frame's own exposure (auto-exposing cameras): off (default), on, auto
+    #[arg(long, value_enum, default_value_t = FrameExposure::Off, requires = "calibrate", hide_possible_values = true, hide_default_value = true)]
     pub frame_exposure: FrameExposure,
     /// Compression of the per-frame EXR files. On lumiprobe's outputs ZIP is
     /// the smallest (a quarter of the raw size for kitchen at 7776x3888) and
