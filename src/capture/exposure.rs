@@ -4,7 +4,7 @@
 //! frames a stop or more off the probes' scale.
 //!
 //! **Per frame.** The nearest probe turned into the frame's orientation and both
-//! averaged over blocks, as in [`super::calibrate`]; every block whose frame
+//! averaged over blocks of a fixed angle ([`ExposureOptions::block_deg`]); every block whose frame
 //! pixels are all well exposed votes, per channel, with the log ratio of the
 //! frame's decoded code to the probe's radiance. A frame's log gain per channel is
 //! the median vote; its uncertainty the votes' spread (interquartile range over
@@ -39,8 +39,11 @@ use serde::Serialize;
 /// Settings of [`walk_exposure`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ExposureOptions {
-    /// Blocks and well-exposed codes, as for the walk's single gain.
+    /// Well-exposed codes, as for the walk's single gain.
     pub blocks: CalibrateOptions,
+    /// Side of the blocks frame and probe are averaged over, in degrees of
+    /// longitude (5.625: 8 pixels at 512 wide), at least 2 pixels.
+    pub block_deg: f64,
     /// Smallest uncertainty of a frame's log gain against its probe (0.05:
     /// 0.07 EV; parallax moves whole surfaces, so the votes are not
     /// independent).
@@ -57,6 +60,7 @@ impl Default for ExposureOptions {
     fn default() -> Self {
         ExposureOptions {
             blocks: CalibrateOptions::default(),
+            block_deg: 5.625,
             floor: 0.05,
             relative_floor: 0.01,
             parallax: 1.0,
@@ -171,7 +175,8 @@ pub fn frame_exposure(
     opts: &ExposureOptions,
 ) -> FrameExposure {
     let (w, h) = (sdr.width(), sdr.height());
-    let b = opts.blocks.block.max(1);
+    // Blocks of a fixed angle, whatever the frame's width.
+    let b = ((w as f64 * opts.block_deg / 360.0).round() as usize).max(2);
     if probe_in_frame.width() != w || probe_in_frame.height() != h || w < b || h < b {
         return FrameExposure::missing();
     }
@@ -466,7 +471,8 @@ mod tests {
         let probe = HdrImage::from_fn(32, 16, |_, _| [0.5, 0.25, 0.125]);
         let r = Response::Srgb;
         let e = frame_exposure(&sdr, &probe, &r, &ExposureOptions::default());
-        assert_eq!(e.blocks, 8);
+        // 32 wide: blocks of 2 pixels (5.6 degrees is under one).
+        assert_eq!(e.blocks, 16 * 8);
         for (k, p) in [0.5f64, 0.25, 0.125].iter().enumerate() {
             let want = (r.decode(c[k] as f32 / 255.0) as f64 / p).ln();
             assert!(
