@@ -417,6 +417,14 @@ mod tests {
         }
     }
 
+    /// The rotation of node `k` of a glTF document.
+    fn node_rotation(g: &serde_json::Value, k: usize) -> glam::Quat {
+        let r: Vec<f32> = (0..4)
+            .map(|i| g["nodes"][k]["rotation"][i].as_f64().unwrap() as f32)
+            .collect();
+        glam::Quat::from_xyzw(r[0], r[1], r[2], r[3])
+    }
+
     #[test]
     fn the_gltf_light_points_from_the_sun() {
         let l = ProbeLight {
@@ -446,13 +454,7 @@ mod tests {
         assert_eq!(def["type"], "directional");
         assert_eq!(def["intensity"].as_f64(), Some(4.0));
         assert_eq!(def["color"][0].as_f64(), Some(0.5));
-        let r = &g["nodes"][0]["rotation"];
-        let q = glam::Quat::from_xyzw(
-            r[0].as_f64().unwrap() as f32,
-            r[1].as_f64().unwrap() as f32,
-            r[2].as_f64().unwrap() as f32,
-            r[3].as_f64().unwrap() as f32,
-        );
+        let q = node_rotation(&g, 0);
         // A sun overhead shines straight down.
         assert!((q * Vec3::NEG_Z).dot(Vec3::NEG_Y) > 0.9999);
     }
@@ -490,13 +492,7 @@ mod tests {
         // On the axis: illuminance 4 x 2^2 / 0.64.
         let i = def["intensity"].as_f64().unwrap();
         assert!((i - 25.0).abs() < 1e-4, "{i}");
-        let r = &g["nodes"][0]["rotation"];
-        let q = glam::Quat::from_xyzw(
-            r[0].as_f64().unwrap() as f32,
-            r[1].as_f64().unwrap() as f32,
-            r[2].as_f64().unwrap() as f32,
-            r[3].as_f64().unwrap() as f32,
-        );
+        let q = node_rotation(&g, 0);
         assert!((q * Vec3::NEG_Z).dot(facing) > 0.9999);
         // A probe at grazing incidence or behind the panel sets no runaway
         // intensity.
