@@ -18,6 +18,11 @@ pub struct CalibrateArgs {
     /// With --per-frame: also write the frames' gains as JSON to this file.
     #[arg(long, requires = "per_frame")]
     pub json: Option<PathBuf>,
+    /// With --per-frame: match the probe and the frame before to each frame by
+    /// optical flow before comparing them (truer gains where the walk nears
+    /// lamps; see docs/consumer-video.md).
+    #[arg(long, requires = "per_frame")]
+    pub follow_flow: bool,
 }
 
 /// Runs the command (progress and notes on stderr unless `quiet`).
@@ -26,10 +31,15 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
         scene,
         per_frame,
         json,
+        follow_flow,
     } = a;
     let scene = lumiprobe::pipeline::plan::load_scene(&scene, !quiet)?;
     if per_frame {
-        let w = walk_exposure(&scene, &ExposureOptions::default())?;
+        let opts = ExposureOptions {
+            follow_flow,
+            ..ExposureOptions::default()
+        };
+        let w = walk_exposure(&scene, &opts)?;
         println!("frame      EV vs scene  white balance (r/g, b/g)  sigma EV  blocks  note");
         let ln2 = std::f64::consts::LN_2;
         for (k, f) in scene.frames.iter().enumerate() {
@@ -70,9 +80,12 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
                 .iter()
                 .zip(&w.gain)
                 .zip(&w.measured)
-                .map(|((f, g), m)| {
+                .zip(&w.relative)
+                .zip(&w.sigma)
+                .map(|((((f, g), m), r), s)| {
                     let raw = m.log_gain.map(|v| v.exp());
-                    serde_json::json!({"id": f.id, "gain": g, "measured": raw, "sigma": m.sigma, "blocks": m.blocks})
+                    serde_json::json!({"id": f.id, "gain": g, "measured": raw, "sigma": m.sigma, "blocks": m.blocks,
+                        "step_log": r.log_luminance_gain, "step_sigma": r.sigma, "step_blocks": r.blocks, "solved_sigma": s})
                 })
                 .collect();
             let doc = serde_json::json!({
