@@ -7,7 +7,7 @@ frames. A tool for measuring lumiprobe (issue 20), never used by the product.
 
   consumer_variant.py SCENE OUT [--seed N] [--lag 0.6] [--ev-range 2]
                       [--wb 0.03] [--vignette 0.25] [--crf 26] [--fps 10]
-                      [--hunt 0]
+                      [--hunt 0] [--dual-fisheye FOV]
 
 SCENE is a folder with `poses.json` and a ground truth per frame
 (`path/<id>_gt.exr`), as the shared scenes and the corpus have. OUT gets:
@@ -29,6 +29,13 @@ random walk in log gain per channel (red and blue; green fixed), `wb` per frame.
 A meter that hunts: `hunt` EV added to its target, a sine of 8 frames' period.
 Vignetting: each lens (front and back, the camera's -z and +z) darkens towards
 its rim as 1 - `vignette` (theta / 90 degrees)^2, theta the angle from its axis.
+With `--dual-fisheye FOV` the video holds the two lenses' circles side by side
+(front lens left, equidistant, FOV degrees each, diameter the frame height), as
+two-lens cameras record it, and OUT also gets `scene.toml`: a manifest that reads
+walk.mp4 at the walk's rate, stitches it (`layout = "dual-fisheye"`) and takes the
+poses from `poses_video.json` (the frames renamed as the extraction names them,
+frame_00001 ..., their `sdr` still the decoded files). path/ then holds the
+decoded dual-fisheye frames.
 
 Needs Python 3 with numpy and OpenCV (Debian: python3-opencv) and ffmpeg.
 """
@@ -67,6 +74,34 @@ def vignette_map(h, w, amount):
     return 1.0 - amount * (theta / (math.pi / 2.0)) ** 2
 
 
+def to_dual_fisheye(code, fov_deg):
+    """An equirect image (H x W x 3 codes) as two equidistant fisheye circles side
+    by side (front lens, looking along -z, on the left; each circle's diameter the
+    image height; black outside), written independently of lumiprobe's stitcher."""
+    import cv2
+    import numpy as np
+
+    h, w = code.shape[:2]
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+    back = x >= w / 2
+    cx = np.where(back, 0.75 * w, 0.25 * w)
+    dx, dy = x - cx, y - h / 2.0
+    r = np.hypot(dx, dy)
+    half = math.radians(fov_deg) / 2.0
+    alpha = r / (h / 2.0) * half
+    ux = np.where(r > 0, dx / np.maximum(r, 1e-12), 0.0)
+    uy = np.where(r > 0, dy / np.maximum(r, 1e-12), 0.0)
+    lx, ly, lz = np.sin(alpha) * ux, -np.sin(alpha) * uy, -np.cos(alpha)
+    gx, gy, gz = np.where(back, -lx, lx), ly, np.where(back, -lz, lz)
+    phi = np.arctan2(gx, -gz)
+    theta = np.arcsin(np.clip(gy, -1.0, 1.0))
+    mx = ((phi / (2 * math.pi) + 0.5) * w - 0.5).astype(np.float32)
+    my = ((0.5 - theta / math.pi) * h - 0.5).astype(np.float32)
+    out = cv2.remap(code, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    out[alpha > half] = 0
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene")
@@ -79,7 +114,10 @@ def main():
     ap.add_argument("--crf", type=int, default=26)
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--hunt", type=float, default=0.0)
+    ap.add_argument("--dual-fisheye", type=float, default=0.0, metavar="FOV")
     a = ap.parse_args()
+    if a.dual_fisheye and not 180.0 <= a.dual_fisheye <= 270.0:
+        sys.exit(f"--dual-fisheye {a.dual_fisheye}: a lens field of view in [180, 270] degrees")
     if not 0.0 <= a.lag < 1.0:
         sys.exit(f"--lag {a.lag}: must be in [0, 1)")
     if not (0.0 <= a.vignette < 1.0 and a.ev_range >= 0.0 and a.wb >= 0.0 and a.fps > 0):
@@ -129,6 +167,8 @@ def main():
         x = e * gain[None, None, :] * vig[:, :, None]
         x = x + rng.normal(size=x.shape) * (0.002 + 0.01 * np.sqrt(np.maximum(x, 0.0)))
         code = encode(x)[:, :, ::-1].astype(np.uint8)  # BGR for OpenCV
+        if a.dual_fisheye:
+            code = to_dual_fisheye(code, a.dual_fisheye)
         png = os.path.join(tmp, f"{k:05d}.png")
         if not cv2.imwrite(png, code):
             sys.exit(f"{png}: cannot write")
@@ -160,6 +200,21 @@ def main():
     }
     json.dump(variant, open(os.path.join(a.out, "variant.json"), "w"), indent=1)
     json.dump(poses, open(os.path.join(a.out, "poses.json"), "w"), indent=1)
+    if a.dual_fisheye:
+        video = json.loads(json.dumps(poses))
+        for k, f in enumerate(video["frames"]):
+            f["id"] = f"frame_{k + 1:05d}"
+        json.dump(video, open(os.path.join(a.out, "poses_video.json"), "w"), indent=1)
+        probes = "".join(
+            f'[[probe]]\nid = "{p["id"]}"\nhdr = "probes/{p["id"]}.exr"\n\n' for p in poses["probes"]
+        )
+        with open(os.path.join(a.out, "scene.toml"), "w") as m:
+            m.write(
+                f'name = "{os.path.basename(os.path.abspath(a.out))}"\n\n[camera]\nresponse = "documented"\n'
+                f'gain = {nominal!r}\n\n{probes}[frames]\nvideo = "walk.mp4"\nfps = {a.fps!r}\n'
+                f'layout = "dual-fisheye"\nfov = {a.dual_fisheye!r}\n\n[poses]\nfile = "poses_video.json"\n\n'
+                f'[output]\nfolder = "out"\n'
+            )
     evs = [r["ev"] for r in rows]
     print(f"{a.out}: {len(rows)} frames, exposure {min(evs):+.2f} to {max(evs):+.2f} EV, walk.mp4 "
           f"{os.path.getsize(mp4) // 1024} KiB")

@@ -112,10 +112,25 @@ impl FlowField {
     pub fn sample(&self, x: f32, y: f32) -> (f32, f32) {
         let (w, h) = (self.width as i64, self.height as i64);
         let y = y.clamp(0.0, (h - 1) as f32);
-        let x0 = x.floor();
-        let y0 = y.floor();
+        let x0 = crate::sphere::floor(x);
+        let y0 = crate::sphere::floor(y);
         let (fx, fy) = (x - x0, y - y0);
         let (x0, y0) = (x0 as i64, y0 as i64);
+        if x0 >= 0 && x0 + 1 < w && y0 + 1 < h {
+            // Interior (y was clamped to at least 0): no wrapping, no division.
+            let (x0, y0) = (x0 as usize, y0 as usize);
+            let (a, b, c, d) = (
+                self.at(x0, y0),
+                self.at(x0 + 1, y0),
+                self.at(x0, y0 + 1),
+                self.at(x0 + 1, y0 + 1),
+            );
+            let lerp = |p: f32, q: f32, t: f32| p + (q - p) * t;
+            return (
+                lerp(lerp(a.0, b.0, fx), lerp(c.0, d.0, fx), fy),
+                lerp(lerp(a.1, b.1, fx), lerp(c.1, d.1, fx), fy),
+            );
+        }
         let get =
             |xi: i64, yi: i64| self.at(xi.rem_euclid(w) as usize, yi.clamp(0, h - 1) as usize);
         let (a, b, c, d) = (
@@ -136,7 +151,7 @@ impl FlowField {
         (self
             .data
             .chunks_exact(2)
-            .map(|v| (v[0] as f64).hypot(v[1] as f64))
+            .map(|v| ((v[0] as f64).powi(2) + (v[1] as f64).powi(2)).sqrt())
             .sum::<f64>()
             / n) as f32
     }
@@ -207,15 +222,25 @@ pub fn texture_confidence(gray: &[u8], w: usize, h: usize, p: &FlowParams) -> Ve
     out.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each(|(y, line)| {
+            // Neighbours one pixel away: wrapped across the seam by a compare,
+            // not a division.
+            let wi = w as i64;
             let g = |xx: i64, yy: i64| {
-                gray[(yy.clamp(0, h as i64 - 1) as usize) * w + xx.rem_euclid(w as i64) as usize]
-                    as f32
+                let xx = if xx < 0 {
+                    xx + wi
+                } else if xx >= wi {
+                    xx - wi
+                } else {
+                    xx
+                };
+                gray[(yy.clamp(0, h as i64 - 1) as usize) * w + xx as usize] as f32
             };
             for (x, c) in line.iter_mut().enumerate() {
                 let (xi, yi) = (x as i64, y as i64);
                 let gx = 0.5 * (g(xi + 1, yi) - g(xi - 1, yi));
                 let gy = 0.5 * (g(xi, yi + 1) - g(xi, yi - 1));
-                let mag = gx.hypot(gy);
+                // `hypot` of finite values, as glibc computes it, inline.
+                let mag = ((gx as f64).powi(2) + (gy as f64).powi(2)).sqrt() as f32;
                 *c = mag / (mag + half);
             }
         });
@@ -239,7 +264,11 @@ pub fn confidence_with(
             for x in 0..w {
                 let (dx, dy) = fwd.at(x, y);
                 let (bx, by) = bwd.sample(x as f32 + dx, y as f32 + dy);
-                let e = (dx + bx).hypot(dy + by);
+                // `hypot` for finite values (glibc's `hypotf` is this sum in
+                // f64), without the library call; NaN or infinite gives 0 below
+                // either way.
+                let (ex, ey) = ((dx + bx) as f64, (dy + by) as f64);
+                let e = (ex * ex + ey * ey).sqrt() as f32;
                 let c_fb = (-(e / sigma).powi(2)).exp();
                 let c = c_fb * texture[y * w + x];
                 line[x] = if c.is_finite() {

@@ -480,7 +480,13 @@ fn fuse(
         .collect();
     // Seam weight per pixel: 1 where the frame clipped (or next to a clipped
     // pixel), `seam_measured` where it measured.
-    let seam_w: Vec<f32> = (0..w * h)
+    let seam_ch = if p.seam_clipped != 0.0 || p.seam_measured != 0.0 {
+        3
+    } else {
+        0
+    };
+    // Only the seam channels read it (none by default).
+    let seam_w: Vec<f32> = (0..if seam_ch > 0 { w * h } else { 0 })
         .map(|px| {
             let (x, y) = (px % w, px / w);
             let near = [(0i64, 0i64), (-1, 0), (1, 0), (0, -1), (0, 1)]
@@ -507,11 +513,6 @@ fn fuse(
     // Per label: three seam channels, then a one-hot label code scaled by the
     // Potts weight (non-zero only where the frame clipped). Channels that would be
     // zero everywhere are left out.
-    let seam_ch = if p.seam_clipped != 0.0 || p.seam_measured != 0.0 {
-        3
-    } else {
-        0
-    };
     let potts_ch = if p.clipped_potts != 0.0 { n_lab } else { 0 };
     let ch = seam_ch + potts_ch;
     let potts_feature = p.clipped_potts / std::f32::consts::SQRT_2;

@@ -15,7 +15,7 @@ use crate::capture::merge::{absolute_scale, AbsoluteScale};
 use crate::capture::{merge, recover, MergeOptions, RecoverOptions, ResponseCurve};
 use crate::error::{Error, Result};
 use crate::image::io;
-use crate::scene::manifest::{FrameSource, GainChoice, Manifest, ResponseChoice};
+use crate::scene::manifest::{FrameLayout, FrameSource, GainChoice, Manifest, ResponseChoice};
 use crate::scene::{Frame, Pose, Probe, Scene};
 use std::path::{Path, PathBuf};
 
@@ -99,19 +99,52 @@ fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
             std::fs::remove_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         }
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let st = std::process::Command::new("ffmpeg")
-            .args(["-v", "error", "-nostdin", "-i"])
+        // `showinfo` prints each frame it passes, with its time in the video,
+        // on stderr (at the "info" level, which `-v error` would hide, so the
+        // level stays and errors are told apart by the exit status).
+        let run = std::process::Command::new("ffmpeg")
+            .args(["-hide_banner", "-nostats", "-nostdin", "-i"])
             .arg(file)
-            .args(["-vf", &format!("fps={fps}"), "-q:v", "2"])
+            .args(["-vf", &format!("fps={fps},showinfo"), "-q:v", "2"])
             .arg(dir.join("frame_%05d.jpg"))
-            .status()
+            .output()
             .map_err(|e| Error::io(file, e))?;
-        if !st.success() {
+        let log = String::from_utf8_lossy(&run.stderr);
+        if !run.status.success() {
+            let last = log
+                .lines()
+                .rev()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("");
             return Err(Error::format(
                 file,
-                format!("ffmpeg could not read it ({st})"),
+                format!("ffmpeg could not read it ({}): {last}", run.status),
             ));
         }
+        let times: Vec<(String, f64)> = log
+            .lines()
+            .filter(|l| l.contains("Parsed_showinfo") && l.contains(" n:"))
+            .filter_map(|l| {
+                let n: usize = l
+                    .split(" n:")
+                    .nth(1)?
+                    .split_whitespace()
+                    .next()?
+                    .parse()
+                    .ok()?;
+                let t: f64 = l
+                    .split("pts_time:")
+                    .nth(1)?
+                    .split_whitespace()
+                    .next()?
+                    .parse()
+                    .ok()?;
+                Some((format!("frame_{:05}", n + 1), t))
+            })
+            .collect();
+        let json =
+            serde_json::to_string_pretty(&times).map_err(|e| Error::Invalid(e.to_string()))?;
+        crate::fsutil::write_atomic(&dir.join(TIMES_FILE), json.as_bytes())?;
         crate::fsutil::write_atomic(&dir.join(".done"), b"")?;
     }
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -121,6 +154,60 @@ fn extract_video(file: &Path, fps: f64, dir: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     v.sort();
     Ok(v)
+}
+
+/// The file, in a video's extraction folder, that lists each extracted frame's
+/// time in the video.
+pub const TIMES_FILE: &str = "times.json";
+
+/// The first and last frame times (seconds) of an extraction folder, when it
+/// has its [`TIMES_FILE`].
+fn video_times(dir: &Path) -> Result<Option<(f64, f64)>> {
+    let f = dir.join(TIMES_FILE);
+    if !f.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&f).map_err(|e| Error::io(&f, e))?;
+    let v: Vec<(String, f64)> =
+        serde_json::from_str(&text).map_err(|e| Error::format(&f, e.to_string()))?;
+    Ok(v.first().zip(v.last()).map(|(a, b)| (a.1, b.1)))
+}
+
+/// Dual-fisheye frames stitched to equirect PNGs (lossless, same stems) in `dir`
+/// (complete when `dir/.done` exists, so an interrupted run redoes it), at the
+/// input's width and half of it in height.
+fn stitch_frames(files: &[PathBuf], fov_deg: f32, dir: &Path) -> Result<Vec<PathBuf>> {
+    use crate::capture::fisheye::{dual_fisheye_to_equirect, DualFisheye};
+    use rayon::prelude::*;
+    let out: Vec<PathBuf> = files
+        .iter()
+        .map(|f| dir.join(format!("{}.png", stem(f))))
+        .collect();
+    if dir.join(".done").exists() {
+        return Ok(out);
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let cfg = DualFisheye::new(fov_deg);
+    files
+        .par_iter()
+        .zip(&out)
+        .try_for_each(|(src, dst)| -> Result<()> {
+            let img = crate::image::io::read_sdr(src)?;
+            let w = img.width();
+            let eq =
+                dual_fisheye_to_equirect(&img, &cfg, w, (w / 2).max(1)).map_err(|e| match e {
+                    Error::Invalid(m) => Error::Invalid(format!(
+                        "{}: as a dual-fisheye frame (frames.layout): {m}",
+                        src.display()
+                    )),
+                    other => other,
+                })?;
+            let tmp = dst.with_extension("tmp.png");
+            crate::image::io::write_sdr(&tmp, &eq)?;
+            std::fs::rename(&tmp, dst).map_err(|e| Error::io(dst, e))
+        })?;
+    crate::fsutil::write_atomic(&dir.join(".done"), b"")?;
+    Ok(out)
 }
 
 /// The 8-bit image of a probe that localization cuts views from: its bracket
@@ -431,7 +518,46 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
             if dry_run && !cached {
                 Vec::new()
             } else {
-                extract_video(file, *fps, &dir)?
+                let v = extract_video(file, *fps, &dir)?;
+                if let Some((first, last)) = video_times(&dir)? {
+                    plan.push(
+                        "frame times",
+                        StageState::Given,
+                        format!(
+                            "{} frames from {first:.3} s to {last:.3} s of the video ({})",
+                            v.len(),
+                            dir.join(TIMES_FILE).display()
+                        ),
+                    );
+                }
+                v
+            }
+        }
+    };
+    let frame_files = match m.frame_layout {
+        FrameLayout::Equirect => frame_files,
+        FrameLayout::DualFisheye { fov_deg } => {
+            let mut parts: Vec<String> = frame_files.iter().map(|f| super::file_stamp(f)).collect();
+            parts.push(format!("dual-fisheye {fov_deg}"));
+            let dir = cache.join(format!("frames-equirect-{}", super::fingerprint(&parts)));
+            plan.live.push(dir.clone());
+            let cached = dir.join(".done").exists();
+            plan.push(
+                "stitch frames",
+                if cached {
+                    StageState::Cached
+                } else {
+                    StageState::Computed
+                },
+                format!(
+                    "{} dual-fisheye frames to equirect, lenses of {fov_deg} degrees",
+                    frame_files.len()
+                ),
+            );
+            if dry_run && !cached {
+                Vec::new()
+            } else {
+                stitch_frames(&frame_files, fov_deg, &dir)?
             }
         }
     };

@@ -23,6 +23,8 @@
 //! pattern = "frame_*.jpg"  # optional: `*` matches any run of characters
 //! # video = "walk.mp4"     # instead of folder: frames extracted with ffmpeg
 //! # fps = 2.0
+//! # layout = "dual-fisheye" # two lens circles side by side (Theta, Gear 360):
+//! # fov = 195               # stitched to equirect (`lumiprobe fisheye`); default "equirect"
 //!
 //! [poses]
 //! file = "poses.json"      # probes and frames by id (the dataset layout)
@@ -88,6 +90,19 @@ pub enum FrameSource {
     },
 }
 
+/// How each frame's image maps to directions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FrameLayout {
+    /// An equirectangular panorama (the default).
+    Equirect,
+    /// Two fisheye circles side by side (front lens left), as two-lens cameras
+    /// record them; stitched to equirect before anything else reads them.
+    DualFisheye {
+        /// Each lens's field of view in degrees (at least 180).
+        fov_deg: f32,
+    },
+}
+
 /// Output settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct OutputSettings {
@@ -116,6 +131,8 @@ pub struct Manifest {
     pub probes: Vec<ProbeSource>,
     /// The frames.
     pub frames: FrameSource,
+    /// How the frames' images map to directions.
+    pub frame_layout: FrameLayout,
     /// Poses file, when given (otherwise poses must be recovered).
     pub poses: Option<PathBuf>,
     /// Output settings.
@@ -164,6 +181,8 @@ struct RawFrames {
     pattern: Option<String>,
     video: Option<String>,
     fps: Option<f64>,
+    layout: Option<String>,
+    fov: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -400,6 +419,30 @@ impl Manifest {
                 FrameSource::Video { file, fps }
             }
         };
+        let frame_layout = match (fr.layout.as_deref(), fr.fov) {
+            (None | Some("equirect"), None) => FrameLayout::Equirect,
+            (None | Some("equirect"), Some(_)) => {
+                return Err(bad(
+                    "frames.fov: a lens field of view needs layout = \"dual-fisheye\"".into(),
+                ))
+            }
+            (Some("dual-fisheye"), fov) => {
+                let fov = fov.unwrap_or(195.0);
+                if !(fov.is_finite() && (180.0..=270.0).contains(&fov)) {
+                    return Err(bad(format!(
+                        "frames.fov: expected a lens field of view in [180, 270] degrees, got {fov}"
+                    )));
+                }
+                FrameLayout::DualFisheye {
+                    fov_deg: fov as f32,
+                }
+            }
+            (Some(other), _) => {
+                return Err(bad(format!(
+                    "frames.layout: expected \"equirect\" or \"dual-fisheye\", got {other:?}"
+                )))
+            }
+        };
         let poses = match raw.poses {
             Some(p) => {
                 let path = resolve(&p.file);
@@ -448,6 +491,7 @@ impl Manifest {
             gain,
             probes,
             frames,
+            frame_layout,
             poses,
             output: OutputSettings {
                 folder: resolve(out.folder.as_deref().unwrap_or("out")),
@@ -732,6 +776,10 @@ size = "256x128"
         assert_eq!(m.output.size, Some((256, 128)));
         assert_eq!(m.output.method, "flow");
         assert_eq!(m.poses, Some(t.path().join("poses.json")));
+        assert_eq!(m.frame_layout, FrameLayout::Equirect);
+        let dual = GOOD.replace("[poses]", "layout = \"dual-fisheye\"\n[poses]");
+        let m = Manifest::parse(&dual, t.path(), &f).unwrap();
+        assert_eq!(m.frame_layout, FrameLayout::DualFisheye { fov_deg: 195.0 });
     }
 
     #[test]
@@ -770,6 +818,15 @@ size = "256x128"
             (
                 GOOD.replace("folder = \"path\"", "video = \"path\"\nfolder = \"path\""),
                 "frames",
+            ),
+            (
+                GOOD.replace("[poses]", "layout = \"fisheye\"\n[poses]"),
+                "frames.layout",
+            ),
+            (GOOD.replace("[poses]", "fov = 200\n[poses]"), "frames.fov"),
+            (
+                GOOD.replace("[poses]", "layout = \"dual-fisheye\"\nfov = 120\n[poses]"),
+                "frames.fov",
             ),
         ];
         for (text, key) in cases {
