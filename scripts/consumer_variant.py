@@ -7,7 +7,7 @@ frames. A tool for measuring lumiprobe (issue 20), never used by the product.
 
   consumer_variant.py SCENE OUT [--seed N] [--lag 0.6] [--ev-range 2]
                       [--wb 0.03] [--vignette 0.25] [--crf 26] [--fps 10]
-                      [--hunt 0] [--dual-fisheye FOV]
+                      [--hunt 0] [--dual-fisheye FOV] [--video-response srgb]
 
 SCENE is a folder with `poses.json` and a ground truth per frame
 (`path/<id>_gt.exr`), as the shared scenes and the corpus have. OUT gets:
@@ -26,7 +26,9 @@ The meter: each frame the camera wants the mean of the image it records at
 0.18 (mean metering) within +-`ev_range` EV of the nominal gain, and moves a
 fraction 1 - `lag` of the way there from its last exposure. White balance: a
 random walk in log gain per channel (red and blue; green fixed), `wb` per frame.
-A meter that hunts: `hunt` EV added to its target, a sine of 8 frames' period.
+`--video-response srgb` records the walk through the sRGB curve instead of the
+documented one (the brackets' response stays documented): a video mode's own
+tone curve. A meter that hunts: `hunt` EV added to its target, a sine of 8 frames' period.
 Vignetting: each lens (front and back, the camera's -z and +z) darkens towards
 its rim as 1 - `vignette` (theta / 90 degrees)^2, theta the angle from its axis.
 With `--dual-fisheye FOV` the video holds the two lenses' circles side by side
@@ -57,6 +59,15 @@ def encode(code_linear):
 
     y = np.maximum(code_linear, 0.0) ** (1.0 / 2.2)
     return np.round(np.minimum(1.0, 1.08 * y / (1.0 + 0.08 * y)) * 255.0)
+
+
+def encode_srgb(code_linear):
+    """The sRGB curve to codes: a video mode's tone curve other than the photos'."""
+    import numpy as np
+
+    x = np.clip(code_linear, 0.0, 1.0)
+    y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    return np.round(y * 255.0)
 
 
 def vignette_map(h, w, amount):
@@ -115,6 +126,7 @@ def main():
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--hunt", type=float, default=0.0)
     ap.add_argument("--dual-fisheye", type=float, default=0.0, metavar="FOV")
+    ap.add_argument("--video-response", choices=["documented", "srgb"], default="documented")
     a = ap.parse_args()
     if a.dual_fisheye and not 180.0 <= a.dual_fisheye <= 270.0:
         sys.exit(f"--dual-fisheye {a.dual_fisheye}: a lens field of view in [180, 270] degrees")
@@ -166,7 +178,8 @@ def main():
         gain = nominal * 2.0 ** ev * wb
         x = e * gain[None, None, :] * vig[:, :, None]
         x = x + rng.normal(size=x.shape) * (0.002 + 0.01 * np.sqrt(np.maximum(x, 0.0)))
-        code = encode(x)[:, :, ::-1].astype(np.uint8)  # BGR for OpenCV
+        curve = encode_srgb if a.video_response == "srgb" else encode
+        code = curve(x)[:, :, ::-1].astype(np.uint8)  # BGR for OpenCV
         if a.dual_fisheye:
             code = to_dual_fisheye(code, a.dual_fisheye)
         png = os.path.join(tmp, f"{k:05d}.png")
@@ -195,7 +208,8 @@ def main():
         "scene": os.path.abspath(a.scene),
         "nominal_gain": nominal,
         "settings": {"seed": a.seed, "lag": a.lag, "ev_range": a.ev_range, "wb": a.wb,
-                     "vignette": a.vignette, "hunt": a.hunt, "crf": a.crf, "fps": a.fps, "codec": "libx264 yuv420p"},
+                     "vignette": a.vignette, "hunt": a.hunt, "crf": a.crf, "fps": a.fps, "codec": "libx264 yuv420p",
+                     "video_response": a.video_response},
         "frames": rows,
     }
     json.dump(variant, open(os.path.join(a.out, "variant.json"), "w"), indent=1)

@@ -139,6 +139,80 @@ pub struct WalkExposure {
     pub spread_over_noise: f64,
     /// Range of the walk's solved luminance gains, in EV (stops).
     pub swing_ev: f64,
+    /// How the frames' blocks agree with the probes by code level, once each
+    /// frame's solved gain is taken out ([`response_fit`]): empty when no
+    /// frame was measured against a probe.
+    pub response_fit: Vec<CodeLevel>,
+}
+
+/// The frames' blocks of one range of codes against the probes, their solved
+/// gains taken out: with the right response the median is 0 at every level.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct CodeLevel {
+    /// Lowest and highest mean luminance code (0-255) of the range.
+    pub codes: (f32, f32),
+    /// Median residual, in EV.
+    pub median_ev: f64,
+    /// Blocks in the range.
+    pub blocks: usize,
+}
+
+/// Code ranges [`response_fit`] splits the well-exposed codes into.
+const LEVELS: usize = 6;
+
+/// Residuals of the blocks' luminance log ratios (`levels[k]`: frame `k`'s
+/// blocks, mean code and log ratio) against each frame's solved luminance log
+/// gain, by code range between `lo` and `hi`: a response that is wrong for the
+/// frames (a video tone curve other than the photos') bends them with the code.
+pub fn response_fit(
+    levels: &[Vec<(f32, f64)>],
+    gain: &[[f32; 3]],
+    lo: u8,
+    hi: u8,
+) -> Vec<CodeLevel> {
+    let mut bins: Vec<Vec<f64>> = vec![Vec::new(); LEVELS];
+    let step = (hi as f32 - lo as f32).max(1.0) / LEVELS as f32;
+    for (blocks, g) in levels.iter().zip(gain) {
+        let solved = (REC709[0] / g[0] as f64 + REC709[1] / g[1] as f64 + REC709[2] / g[2] as f64)
+            .recip()
+            .ln();
+        if !solved.is_finite() {
+            continue;
+        }
+        for &(code, lum) in blocks {
+            let i = (((code - lo as f32) / step).floor().max(0.0) as usize).min(LEVELS - 1);
+            bins[i].push((lum - solved) / std::f64::consts::LN_2);
+        }
+    }
+    bins.iter_mut()
+        .enumerate()
+        .filter(|(_, v)| !v.is_empty())
+        .map(|(i, v)| CodeLevel {
+            codes: (
+                lo as f32 + i as f32 * step,
+                lo as f32 + (i + 1) as f32 * step,
+            ),
+            median_ev: median(v),
+            blocks: v.len(),
+        })
+        .collect()
+}
+
+impl WalkExposure {
+    /// The spread (EV) of [`WalkExposure::response_fit`]'s medians over the
+    /// ranges with at least `min_blocks` blocks (0 with fewer than two such).
+    pub fn response_misfit_ev(&self, min_blocks: usize) -> f64 {
+        let m: Vec<f64> = self
+            .response_fit
+            .iter()
+            .filter(|l| l.blocks >= min_blocks)
+            .map(|l| l.median_ev)
+            .collect();
+        if m.len() < 2 {
+            return 0.0;
+        }
+        m.iter().cloned().fold(f64::MIN, f64::max) - m.iter().cloned().fold(f64::MAX, f64::min)
+    }
 }
 
 /// Smallest range of a walk's exposure (EV) for which each frame's own gain is
@@ -193,11 +267,24 @@ pub fn frame_exposure(
     response: &Response,
     opts: &ExposureOptions,
 ) -> FrameExposure {
+    exposure_and_levels(sdr, probe_in_frame, response, opts).0
+}
+
+/// [`frame_exposure`] and each voting block's mean luminance code (0-255)
+/// with its luminance log ratio: where the response is right, the ratio does
+/// not depend on the code.
+fn exposure_and_levels(
+    sdr: &SdrImage,
+    probe_in_frame: &HdrImage,
+    response: &Response,
+    opts: &ExposureOptions,
+) -> (FrameExposure, Vec<(f32, f64)>) {
+    let mut levels = Vec::new();
     let (w, h) = (sdr.width(), sdr.height());
     // Blocks of a fixed angle, whatever the frame's width.
     let b = ((w as f64 * opts.block_deg / 360.0).round() as usize).max(2);
     if probe_in_frame.width() != w || probe_in_frame.height() != h || w < b || h < b {
-        return FrameExposure::missing();
+        return (FrameExposure::missing(), levels);
     }
     let decode: Vec<f64> = (0..256)
         .map(|c| response.decode(c as f32 / 255.0) as f64)
@@ -207,7 +294,7 @@ pub fn frame_exposure(
     let mut votes: [Vec<f64>; 4] = Default::default();
     for by in 0..bh {
         'block: for bx in 0..bw {
-            let (mut f, mut p) = ([0.0f64; 3], [0.0f64; 3]);
+            let (mut f, mut p, mut code) = ([0.0f64; 3], [0.0f64; 3], 0.0f64);
             for y in by * b..(by + 1) * b {
                 for x in bx * b..(bx + 1) * b {
                     let c = sdr.get(x, y);
@@ -218,6 +305,7 @@ pub fn frame_exposure(
                     for k in 0..3 {
                         f[k] += decode[c[k] as usize];
                         p[k] += r[k] as f64;
+                        code += REC709[k] * c[k] as f64;
                     }
                 }
             }
@@ -234,21 +322,25 @@ pub fn frame_exposure(
                     votes[k].push(ratios[k]);
                 }
                 votes[3].push(lum);
+                levels.push(((code / (b * b) as f64) as f32, lum));
             }
         }
     }
     let n = votes[3].len();
     if n == 0 {
-        return FrameExposure::missing();
+        return (FrameExposure::missing(), levels);
     }
     let sigma = (1.2533 * iqr(&mut votes[3].clone()) / 1.349 / (n as f64).sqrt()).max(opts.floor);
     let [r, g, bl, l] = &mut votes;
-    FrameExposure {
-        log_gain: [median(r), median(g), median(bl)],
-        log_luminance_gain: median(l),
-        sigma,
-        blocks: n,
-    }
+    (
+        FrameExposure {
+            log_gain: [median(r), median(g), median(bl)],
+            log_luminance_gain: median(l),
+            sigma,
+            blocks: n,
+        },
+        levels,
+    )
 }
 
 /// Huber's threshold, in sigmas: a residual beyond it weighs as if it were
@@ -370,6 +462,7 @@ pub fn along_walk(
         outliers: (0..n).filter(|&k| down[k]).collect(),
         filled: (0..n).filter(|&k| a0[k] == 0.0).collect(),
         spread_over_noise: if noise > 0.0 { spread / noise } else { 0.0 },
+        response_fit: Vec::new(),
     }
 }
 
@@ -419,6 +512,7 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
     let mut measured = Vec::with_capacity(scene.frames.len());
     let mut relative = Vec::with_capacity(scene.frames.len());
     let mut distances = Vec::with_capacity(scene.frames.len());
+    let mut levels = Vec::with_capacity(scene.frames.len());
     let mut before: Option<(HdrImage, HdrImage, crate::scene::Pose)> = None;
     let decode: Vec<f32> = (0..256)
         .map(|c| scene.response.decode(c as f32 / 255.0))
@@ -469,7 +563,8 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
         } else {
             turned
         };
-        let mut m = frame_exposure(&sdr, &turned, &scene.response, opts);
+        let (mut m, lv) = exposure_and_levels(&sdr, &turned, &scene.response, opts);
+        levels.push(lv);
         distances.push(f.pose.position.distance(scene.probes[k].pose.position) as f64);
         m.sigma = m.sigma.max(opts.floor);
         measured.push(m);
@@ -491,7 +586,9 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
             scene.root.display()
         )));
     }
-    Ok(along_walk(&measured, &relative, opts))
+    let mut w = along_walk(&measured, &relative, opts);
+    w.response_fit = response_fit(&levels, &w.gain, lo, hi);
+    Ok(w)
 }
 
 /// `prev` (the frame before, decoded, in this frame's orientation) moved onto
@@ -521,6 +618,50 @@ fn follow_flow(sdr: &SdrImage, prev_codes: &HdrImage, prev: &HdrImage) -> Result
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn residuals_by_code_are_flat_for_the_right_response_and_bend_for_another() {
+        // Two frames with gains 0.5 and 1 (luminance), blocks at every code
+        // level; the right response leaves each block's log ratio at its frame's
+        // gain, a wrong one adds a code-dependent bend (here 0.5 EV per 100 codes).
+        let gain = [[0.5f32; 3], [1.0f32; 3]];
+        let blocks = |bend: f64| -> Vec<Vec<(f32, f64)>> {
+            gain.iter()
+                .map(|g| {
+                    (20..230)
+                        .map(|c| {
+                            let code = c as f32;
+                            (
+                                code,
+                                (g[1] as f64).ln()
+                                    + bend * (code as f64 - 20.0) / 100.0 * std::f64::consts::LN_2,
+                            )
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let mut w = along_walk(
+            &[frame(0.0, 0.1), frame(0.0, 0.1)],
+            &[step(0.0, 0.1), step(0.0, 0.1)],
+            &ExposureOptions::default(),
+        );
+        w.gain = gain.to_vec();
+        w.response_fit = response_fit(&blocks(0.0), &w.gain, 20, 230);
+        assert_eq!(w.response_fit.len(), LEVELS);
+        assert!(
+            w.response_fit.iter().all(|l| l.median_ev.abs() < 1e-9),
+            "{:?}",
+            w.response_fit
+        );
+        assert!(w.response_misfit_ev(10) < 1e-9);
+        w.response_fit = response_fit(&blocks(0.5), &w.gain, 20, 230);
+        let spread = w.response_misfit_ev(10);
+        assert!(
+            (spread - 0.5 * 175.0 / 100.0).abs() < 0.1,
+            "spread {spread}"
+        );
+    }
 
     #[test]
     fn the_frame_before_moved_along_the_flow_lands_on_the_same_surfaces() {

@@ -6,6 +6,20 @@ use lumiprobe::capture::exposure::{walk_exposure, ExposureOptions};
 use lumiprobe::Result;
 use std::path::PathBuf;
 
+/// Code ranges with fewer blocks than this do not count in the response's
+/// spread.
+const MIN_LEVEL_BLOCKS: usize = 50;
+
+/// A short name of a response for the report.
+fn response_name(r: &lumiprobe::tonemap::Response) -> String {
+    let s = format!("{r:?}");
+    s.split_whitespace()
+        .next()
+        .unwrap_or("")
+        .trim_end_matches('{')
+        .to_string()
+}
+
 /// Arguments of `lumiprobe calibrate`.
 #[derive(clap::Args)]
 pub struct CalibrateArgs {
@@ -74,6 +88,25 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
                 "one gain serves the walk"
             }
         );
+        // The response the frames were decoded with, against the walk itself.
+        let misfit = w.response_misfit_ev(MIN_LEVEL_BLOCKS);
+        let levels: Vec<String> = w
+            .response_fit
+            .iter()
+            .map(|l| {
+                format!(
+                    "{:.0}-{:.0}: {:+.2} ({})",
+                    l.codes.0, l.codes.1, l.median_ev, l.blocks
+                )
+            })
+            .collect();
+        println!(
+            "response ({}): the frames' blocks against the probes by mean code, each frame's gain taken out, \
+             median EV (blocks): {}; spread over ranges of {MIN_LEVEL_BLOCKS}+ blocks {misfit:.2} EV \
+             (0 where the response is the frames'; see docs/consumer-video.md)",
+            response_name(&scene.response),
+            levels.join(", "),
+        );
         if let Some(path) = json {
             let rows: Vec<serde_json::Value> = scene
                 .frames
@@ -92,6 +125,8 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
                 "scene_gain": scene.path_gain,
                 "spread_over_noise": w.spread_over_noise,
                 "swing_ev": w.swing_ev,
+                "response_fit": w.response_fit,
+                "response_misfit_ev": misfit,
                 "varies": w.varies(),
                 "outliers": w.outliers,
                 "filled": w.filled,
