@@ -4,8 +4,11 @@
 //! Exif exposure times (e.g. a probe folder of the evaluation data). Without it a
 //! synthetic room-like panorama is shot through the documented response.
 
+#[path = "common/mod.rs"]
+mod common;
+use common::best_ms;
+
 use std::path::PathBuf;
-use std::time::Instant;
 
 use lumiprobe::capture::cli::load_exposures;
 use lumiprobe::capture::{merge, recover, Exposure, MergeOptions, RecoverOptions};
@@ -40,16 +43,6 @@ fn synthetic() -> Vec<Exposure> {
             }
         })
         .collect()
-}
-
-fn best_ms(runs: usize, mut f: impl FnMut()) -> f64 {
-    (0..runs)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::INFINITY, f64::min)
 }
 
 fn main() {

@@ -6,7 +6,9 @@
 //! with a 3x3-texel sun at 1e6 times the median is used (the case that would show
 //! fireflies without PDF-based source-mip selection).
 
-use std::time::Instant;
+#[path = "common/mod.rs"]
+mod common;
+use common::best_ms;
 
 use lumiprobe::ibl::{
     brdf_lut, irradiance_cube, prefilter_specular, PrefilterOptions, Prefiltered, Sh9,
@@ -27,17 +29,6 @@ fn sun_sky(w: usize, h: usize) -> HdrImage {
         }
     }
     env
-}
-
-/// Best wall time of `runs` calls, in milliseconds.
-fn best_ms(runs: usize, mut f: impl FnMut()) -> f64 {
-    (0..runs)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::INFINITY, f64::min)
 }
 
 fn main() {

@@ -4,22 +4,15 @@
 //! of a 512x256 panorama turned by a small rotation. Run with
 //! `cargo bench --bench sampling`.
 
+#[path = "common/mod.rs"]
+mod common;
+use common::best_ms;
+
 use std::hint::black_box;
-use std::time::Instant;
 
 use glam::Mat3;
 use lumiprobe::image::HdrImage;
 use lumiprobe::sphere::{dir_to_uv, floor, pixel_to_dir, rotate};
-
-fn best_ms(runs: usize, mut f: impl FnMut()) -> f64 {
-    (0..runs)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .fold(f64::INFINITY, f64::min)
-}
 
 fn main() {
     let (w, h) = (512, 256);

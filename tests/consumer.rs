@@ -39,23 +39,33 @@ fn json(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&text).unwrap()
 }
 
+/// Makes a consumer-camera variant of `scene` in `out` with
+/// `scripts/consumer_variant.py` and `args`, asserting that it succeeds.
+fn make_variant(scene: &Path, out: &Path, args: &[&str]) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/consumer_variant.py");
+    let run = Command::new(python())
+        .arg(&script)
+        .arg(scene)
+        .arg(out)
+        .args(args)
+        .output()
+        .expect("python3 runs the variant maker");
+    assert!(
+        run.status.success(),
+        "consumer_variant.py failed (needs python3-opencv and ffmpeg): {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+}
+
 #[test]
 fn each_frames_exposure_is_recovered_from_an_auto_exposed_h264_walk() {
     let scene = data::shared_file("scenes/kitchen");
     let tmp = tempfile::tempdir().unwrap();
     let variant = tmp.path().join("variant");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/consumer_variant.py");
-    let out = Command::new(python())
-        .arg(&script)
-        .arg(&scene)
-        .arg(&variant)
-        .args(["--vignette", "0", "--hunt", "0.7", "--seed", "3"])
-        .output()
-        .expect("python3 runs the variant maker");
-    assert!(
-        out.status.success(),
-        "consumer_variant.py failed (needs python3-opencv and ffmpeg): {}",
-        String::from_utf8_lossy(&out.stderr)
+    make_variant(
+        &scene,
+        &variant,
+        &["--vignette", "0", "--hunt", "0.7", "--seed", "3"],
     );
     assert!(variant.join("walk.mp4").metadata().unwrap().len() > 0);
     let truth = json(&variant.join("variant.json"));
@@ -179,18 +189,10 @@ fn a_dual_fisheye_mp4_is_read_at_its_rate_stitched_and_fused_from_its_manifest()
     let scene = data::shared_file("scenes/kitchen");
     let tmp = tempfile::tempdir().unwrap();
     let variant = tmp.path().join("variant");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/consumer_variant.py");
-    let out = Command::new(python())
-        .arg(&script)
-        .arg(&scene)
-        .arg(&variant)
-        .args(["--vignette", "0", "--seed", "0", "--dual-fisheye", "195"])
-        .output()
-        .expect("python3 runs the variant maker");
-    assert!(
-        out.status.success(),
-        "consumer_variant.py failed (needs python3-opencv and ffmpeg): {}",
-        String::from_utf8_lossy(&out.stderr)
+    make_variant(
+        &scene,
+        &variant,
+        &["--vignette", "0", "--seed", "0", "--dual-fisheye", "195"],
     );
     let pred = tmp.path().join("out");
     let manifest = variant.join("scene.toml");
