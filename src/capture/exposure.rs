@@ -513,7 +513,7 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
     let mut relative = Vec::with_capacity(scene.frames.len());
     let mut distances = Vec::with_capacity(scene.frames.len());
     let mut levels = Vec::with_capacity(scene.frames.len());
-    let mut before: Option<(HdrImage, HdrImage, crate::scene::Pose)> = None;
+    let mut before: Option<(HdrImage, Option<HdrImage>, crate::scene::Pose)> = None;
     let decode: Vec<f32> = (0..256)
         .map(|c| scene.response.decode(c as f32 / 255.0))
         .collect();
@@ -528,11 +528,12 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
             {
                 let r = f.pose.from_other(pose);
                 let turned = rotate(prev, r, sdr.width(), sdr.height());
-                let turned = if opts.follow_flow {
-                    let codes = rotate(codes, r, sdr.width(), sdr.height());
-                    follow_flow(&sdr, &codes, &turned)?
-                } else {
-                    turned
+                let turned = match codes {
+                    Some(codes) => {
+                        let codes = rotate(codes, r, sdr.width(), sdr.height());
+                        follow_flow(&sdr, &codes, &turned)?
+                    }
+                    None => turned,
                 };
                 frame_exposure(&sdr, &turned, &scene.response, opts)
             }
@@ -546,8 +547,11 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
                 [f32::NAN; 3]
             }
         });
-        let codes = HdrImage::from_fn(sdr.width(), sdr.height(), |x, y| {
-            sdr.get(x, y).map(|v| v as f32)
+        // The codes as floats, for the flow only.
+        let codes = opts.follow_flow.then(|| {
+            HdrImage::from_fn(sdr.width(), sdr.height(), |x, y| {
+                sdr.get(x, y).map(|v| v as f32)
+            })
         });
         before = Some((dec, codes, f.pose));
         let (turned, k) = nearest_probe_in_frame(scene, f, &mut probes, sdr.width(), sdr.height())?;
