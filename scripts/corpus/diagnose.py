@@ -66,7 +66,7 @@ def main():
     only = {int(x) for x in a.frames.split(",") if x}
     rows = []
     if not a.brief:
-        print("frame     P_true   P_pred   P_sdr | outside: true   pred | clipped: true  pred  sdr_lo | regions (px: true / pred)")
+        print("frame     P_true   P_pred   P_sdr | outside: true   pred | clipped: true  pred  sdr_lo | regions (px@(x,y): true / pred)")
     for k, f in enumerate(poses["frames"]):
         if only and k not in only:
             continue
@@ -87,7 +87,8 @@ def main():
         regs = []
         for r in range(1, n):
             m = lab == r
-            regs.append((m.sum(), pt[m].sum(), pq[m].sum()))
+            ys, xs = np.nonzero(m)
+            regs.append((f"{m.sum()}@({xs.mean():.0f},{ys.mean():.0f})", pt[m].sum(), pq[m].sum()))
         regs.sort(key=lambda t: -abs(t[2] - t[1]))
         out = ~clipped
         total = pt.sum()

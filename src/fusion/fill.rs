@@ -6,7 +6,7 @@
 
 use super::edges::carry_with_sharp_edges;
 use super::lights::SkyView;
-use super::regions::{Kind, Pixels, Region};
+use super::regions::{Far, Kind, Pixels, Region};
 use super::{FusionParams, Measured};
 use crate::image::{luminance, HdrImage};
 use crate::sphere::sample_px;
@@ -65,8 +65,7 @@ fn far_sources(
         }
     }
     for r in regions.iter_mut() {
-        let c = r.far.cover;
-        r.far.ok = c.1 > 0.0 && c.0 >= p.min_far_cover * c.1;
+        r.far.ok = Far::covers(r.far.cover, p);
     }
     // The median (by luminance) of each region's covered pixels: the least the
     // others get (a mean would spread a sun's core over them).

@@ -127,6 +127,15 @@ pub(super) struct Far {
     pub median: Option<[f32; 3]>,
 }
 
+impl Far {
+    /// Whether a lookup covering `cover` (solid angle covered, of all the
+    /// region's fully clipped pixels) is the region's source: it covers at
+    /// least `min_far_cover` of it.
+    pub fn covers(cover: (f64, f64), p: &FusionParams) -> bool {
+        cover.1 > 0.0 && cover.0 >= p.min_far_cover * cover.1
+    }
+}
+
 /// How the region's light is spread over its pixels.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Fill {

@@ -309,6 +309,7 @@ impl PairLights {
                     }),
                     seen: [l.seen[0].0, l.seen[1].0],
                     distance: (!l.at_infinity).then(|| l.position.distance(frame.position)),
+                    extra: false,
                 }
             })
             .collect()
