@@ -19,7 +19,7 @@ pub(super) fn assign_placed<'v>(
     fallbacks: &mut Vec<Fallback>,
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
-    let cos_max = p.max_angle_deg.to_radians().cos();
+    let cos_max = p.max_angle_deg.min(p.max_move_deg).to_radians().cos();
     let mut report = Vec::with_capacity(placed.len());
     let mut far: Option<Vec<bool>> = None;
     for light in placed {

@@ -531,7 +531,7 @@ fn a_light_carried_through_its_surface_fills_its_region_with_the_probes_radiance
         &p,
     )
     .unwrap();
-    assert!(rep.blobs.iter().any(|b| b.reprojected));
+    assert!(rep.blobs.iter().any(|b| b.reprojected), "{:?}", rep.lights);
     let plain = FusionParams {
         surface_px: 0,
         ..FusionParams::default()
@@ -579,7 +579,12 @@ fn fill_with_pose_error(posed: glam::Vec3, truth_at: glam::Vec3) -> (f64, usize)
     let white = 2.0f32;
     let (codes, lin) = sdr_of(&truth, white);
     let sdr = SdrImage::from_vec(w, h, codes).unwrap();
-    let p = FusionParams::default();
+    // The pose error moves the panel about 35 degrees off its clipped pixels:
+    // allowed here up to 40 degrees (the default, 15, leaves it out).
+    let p = FusionParams {
+        max_move_deg: 40.0,
+        ..Default::default()
+    };
     let placed = lights_at_frame((&ia, &a), (&ib, &b), &posed, white, &p);
     let views: Vec<_> = placed.iter().filter_map(|l| l.view).collect();
     assert!(!views.is_empty(), "no light carried through its surface");
@@ -601,7 +606,7 @@ fn fill_with_pose_error(posed: glam::Vec3, truth_at: glam::Vec3) -> (f64, usize)
         &p,
     )
     .unwrap();
-    assert!(rep.blobs.iter().any(|b| b.reprojected));
+    assert!(rep.blobs.iter().any(|b| b.reprojected), "{:?}", rep.lights);
     (
         power_above(&out, white) / power_above(&truth, white),
         missed,
@@ -1118,13 +1123,13 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
 /// sun triangulated at infinity), with the sky lookup; returns the window's power
 /// above white in the fused frame and in the truth.
 fn window_with_placed_light(light_power: f64) -> (f64, f64) {
-    window_fill(Some(light_power), 1.0)
+    window_fill(Some(light_power), 1.0, 4)
 }
 
 /// A window's fill (and the truth's power above white) with a light of the given
 /// power placed in it, or none, and an estimate whose radiance above white is
 /// `estimate_gain` times the nearest probe's.
-fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
+fn window_fill(light_power: Option<f64>, estimate_gain: f32, sky_probes: usize) -> (f64, f64) {
     use crate::scene::Pose;
     use lights::tests::upright;
     use lights::SkyView;
@@ -1146,7 +1151,7 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32) -> (f64, f64) {
     let (codes, lin) = sdr_of(&truth, white);
     let sdr = SdrImage::from_vec(w, h, codes).unwrap();
     let sky = SkyView {
-        probes: images.iter().zip(&probes).collect(),
+        probes: images.iter().zip(&probes).take(sky_probes).collect(),
         frame,
         floor: white,
         near: Vec::new(),
@@ -1216,7 +1221,7 @@ fn a_window_the_sky_lookup_covers_keeps_the_sky_not_the_estimates_larger_power()
     // The estimate (a transport of the nearest probe) holds twice the window's
     // light; the probes' sky lookup covers every fully clipped pixel. With no light
     // placed, nothing measured that extra power: the window holds the sky.
-    let (got, want) = window_fill(None, 2.0);
+    let (got, want) = window_fill(None, 2.0, 4);
     assert!((got / want - 1.0).abs() < 0.05, "{got} vs {want}");
 }
 
@@ -1309,8 +1314,10 @@ fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
             [0.2; 3]
         }
     });
+    // Moves as far as 30 degrees, so the ratio test is what refuses it.
     let p = FusionParams {
         margin_px: 0,
+        max_move_deg: 30.0,
         ..Default::default()
     };
     let faint = |power: f64| compact_light(w, h, (50, 20), power, 49.0);

@@ -142,8 +142,20 @@ pub fn find_lights(img: &HdrImage, pose: &Pose, threshold: f32, join_deg: f32) -
 
 /// Matches the lights of two probes (at `pa` and `pb`) whose rays nearly meet (gap
 /// below `max_gap`, in the poses' unit, in front of both) or are parallel (sources at infinity),
-/// best pairs first, each light used once.
-pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -> Vec<PlacedLight> {
+/// best pairs first, each light used once. A pair whose two probes disagree on
+/// its intensity by more than `max_ratio` ([`PlacedLight::consistent`]) is not
+/// a light and claims neither of its two: a one-pixel speck whose ray passes
+/// near a lamp's must not take the lamp from the other probe's view of it
+/// (s0018: the lamp's own pair, 2 cm apart and consistent within 1.03, lost
+/// both its lights to specks 100,000 times weaker).
+pub fn triangulate(
+    a: &[Light],
+    pa: Vec3,
+    b: &[Light],
+    pb: Vec3,
+    max_gap: f32,
+    max_ratio: f64,
+) -> Vec<PlacedLight> {
     let mut pairs = Vec::new();
     for (i, la) in a.iter().enumerate() {
         for (j, lb) in b.iter().enumerate() {
@@ -179,11 +191,9 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
         if used_a[i] || used_b[j] {
             continue;
         }
-        used_a[i] = true;
-        used_b[j] = true;
         let radiance = [a[i].radiance(), b[j].radiance()];
         let peak = [a[i].peak, b[j].peak];
-        out.push(match pos {
+        let light = match pos {
             Some(x) => PlacedLight {
                 position: x,
                 at_infinity: false,
@@ -202,7 +212,13 @@ pub fn triangulate(a: &[Light], pa: Vec3, b: &[Light], pb: Vec3, max_gap: f32) -
                 peak,
                 from: (i, j),
             },
-        });
+        };
+        if max_ratio.is_finite() && !light.consistent(max_ratio) {
+            continue;
+        }
+        used_a[i] = true;
+        used_b[j] = true;
+        out.push(light);
     }
     out
 }
@@ -227,10 +243,16 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
     let (la, lb) = (find(a.0, a.1), find(b.0, b.1));
     let (pa, pb) = (a.1.position, b.1.position);
     let mut lights = Vec::new();
-    for l in triangulate(&la, pa, &lb, pb, p.max_gap_rel * pa.distance(pb)) {
-        // Two probes that disagree on the light's intensity (power times squared
-        // distance) saw different parts of it or different lights: the
-        // inverse-square model does not hold, the estimate decides.
+    // Two probes that disagree on a light's intensity (power times squared
+    // distance) saw different parts of it or different lights: the
+    // inverse-square model does not hold, the estimate decides.
+    let gap = p.max_gap_rel * pa.distance(pb);
+    let ratio = if p.consistent_pairs {
+        p.max_intensity_ratio
+    } else {
+        f64::INFINITY
+    };
+    for l in triangulate(&la, pa, &lb, pb, gap, ratio) {
         if !l.consistent(p.max_intensity_ratio) {
             continue;
         }

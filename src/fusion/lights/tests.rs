@@ -24,7 +24,7 @@ fn a_lamp_seen_by_two_probes_is_placed_and_scaled() {
         solid_angle: 0.01,
         ..Default::default()
     };
-    let placed = triangulate(&[la, far.clone()], pa, &[far, lb], pb, 0.2);
+    let placed = triangulate(&[la, far.clone()], pa, &[far, lb], pb, 0.2, f64::INFINITY);
     assert_eq!(placed.len(), 2);
     let lamp_light = placed.iter().find(|p| !p.at_infinity).unwrap();
     assert!(lamp_light.position.distance(lamp) < 1e-3);
@@ -169,7 +169,7 @@ fn probes_that_disagree_on_a_lights_intensity_are_inconsistent() {
             solid_angle: 0.01,
             ..Default::default()
         };
-        triangulate(&[la], pa, &[lb], pb, 0.2)[0]
+        triangulate(&[la], pa, &[lb], pb, 0.2, f64::INFINITY)[0]
     };
     // A compact source: power falls with the squared distance, same intensity.
     assert!(light(1.0, (da / db).powi(2)).consistent(2.0));
@@ -290,7 +290,7 @@ fn a_uniform_panel_seen_small_and_large_is_fitted_to_the_ceiling() {
     );
     assert_eq!((la.len(), lb.len()), (1, 1));
     assert!(la[0].pixels.len() > 3 * lb[0].pixels.len());
-    let placed = triangulate(&la, a.position, &lb, b.position, 0.5);
+    let placed = triangulate(&la, a.position, &lb, b.position, 0.5, f64::INFINITY);
     assert_eq!(placed.len(), 1);
     let (surface, _) = fit_surface((&ia, &a), &la[0], (&ib, &b), &lb[0], placed[0].position);
     match surface {
@@ -319,7 +319,7 @@ fn a_ceiling_panel_is_fitted_to_the_ceiling_and_carried_pixel_by_pixel() {
         find_lights(&ib, &b, white, 0.7),
     );
     assert_eq!((la.len(), lb.len()), (1, 1));
-    let placed = triangulate(&la, a.position, &lb, b.position, 0.2);
+    let placed = triangulate(&la, a.position, &lb, b.position, 0.2, f64::INFINITY);
     assert_eq!(placed.len(), 1);
     let point = placed[0].position;
     assert!((point.z - 2.6).abs() < 0.1, "{point}");
@@ -625,4 +625,31 @@ mod witness_property {
             prop_assert!(kept.is_some_and(|c| c[1] > 0.5 * radiance), "{kept:?}");
         }
     }
+}
+
+#[test]
+fn a_speck_whose_ray_passes_nearer_a_lamp_does_not_take_the_lamp_from_its_pair() {
+    let lamp = Vec3::new(1.0, 2.0, 0.0);
+    let (pa, pb) = (Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0));
+    let light = |from: Vec3, to: Vec3, power: f64| Light {
+        dir: (to - from).normalize(),
+        power,
+        solid_angle: 1e-3,
+        ..Default::default()
+    };
+    // Probe a's ray passes 2 cm above the lamp (placement noise); a speck of
+    // probe b, 1e5 times weaker, lies exactly on it.
+    let above = lamp + Vec3::new(0.0, 0.0, 0.02);
+    let la = light(pa, above, 1.0 / lamp.distance_squared(pa) as f64);
+    let lb = light(pb, lamp, 1.0 / lamp.distance_squared(pb) as f64);
+    let speck = light(pb, above, 1e-5);
+    let (a, b) = ([la], [speck, lb]);
+    let placed = triangulate(&a, pa, &b, pb, 0.2, 2.0);
+    assert_eq!(placed.len(), 1, "{placed:?}");
+    assert_eq!(placed[0].from, (0, 1));
+    assert!(placed[0].position.distance(lamp) < 0.02, "{:?}", placed[0].position);
+    // Without the intensity test the speck wins the nearest-rays race.
+    let careless = triangulate(&a, pa, &b, pb, 0.2, f64::INFINITY);
+    assert_eq!(careless.len(), 1);
+    assert_eq!(careless[0].from, (0, 0));
 }
