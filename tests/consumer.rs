@@ -179,6 +179,19 @@ fn a_walk_with_nothing_well_exposed_is_refused_with_the_scene_named() {
         err.contains(&dir.display().to_string()) && err.contains("well-exposed"),
         "{err}"
     );
+    // Run from the scene's folder on the bare file name: the message still
+    // names where (the folder `.`) and which scene.
+    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(["calibrate", "--per-frame", "poses.json"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("invalid input: . (scene ") && err.contains("well-exposed"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -190,8 +190,12 @@ pub fn calibrate_gain(scene: &Scene, opts: &CalibrateOptions) -> Result<GainEsti
         .collect();
     if logs.is_empty() {
         return Err(Error::Invalid(format!(
-            "{}: no frame has a well-exposed region to calibrate against the probes",
-            scene.root.display()
+            "{} (scene {}): none of its {} frames has a well-exposed region a probe also sees \
+             (every one clipped or dark there), so nothing calibrates the frames against the \
+             probes; run without --calibrate and give the gain in the manifest",
+            scene.root.display(),
+            scene.name,
+            scene.frames.len()
         )));
     }
     let used = logs.len();

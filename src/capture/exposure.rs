@@ -585,9 +585,12 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
     }
     if !measured.iter().any(FrameExposure::usable) {
         return Err(Error::Invalid(format!(
-            "{}: no frame has a well-exposed region a probe also sees, so no frame's exposure can be \
-             measured against the probes",
-            scene.root.display()
+            "{} (scene {}): none of its {} frames has a well-exposed region a probe also sees \
+             (every one clipped or dark there), so no frame's exposure can be measured against the \
+             probes; run without --frame-exposure and give the gain in the manifest",
+            scene.root.display(),
+            scene.name,
+            scene.frames.len()
         )));
     }
     let mut w = along_walk(&measured, &relative, opts);

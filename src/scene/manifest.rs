@@ -250,10 +250,7 @@ impl Manifest {
     /// manifest and the key.
     pub fn load(path: &Path) -> Result<Manifest> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let root = path
-            .parent()
-            .map(Path::to_path_buf)
-            .unwrap_or_else(|| PathBuf::from("."));
+        let root = super::parent_dir(path);
         Self::parse(&text, &root, path)
     }
 

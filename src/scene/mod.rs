@@ -15,6 +15,15 @@ use glam::{Mat3, Vec3};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+/// The folder holding `file`: `.` for a bare file name (whose parent is the
+/// empty path, which would name nothing in messages).
+pub(crate) fn parent_dir(file: &Path) -> PathBuf {
+    match file.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
 /// A path from a scene or manifest file: absolute as given, relative to `root`.
 pub(crate) fn resolve_path(root: &Path, s: &str) -> PathBuf {
     let p = Path::new(s);
@@ -183,10 +192,7 @@ impl Scene {
     /// Loads `dir/poses.json` (or a `poses.json` path given directly).
     pub fn load(dir: &Path) -> Result<Scene> {
         let (root, file) = if dir.is_file() {
-            (
-                dir.parent().unwrap_or(Path::new(".")).to_path_buf(),
-                dir.to_path_buf(),
-            )
+            (parent_dir(dir), dir.to_path_buf())
         } else {
             (dir.to_path_buf(), dir.join("poses.json"))
         };
