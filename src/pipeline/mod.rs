@@ -386,6 +386,19 @@ fn witness_frames<'s>(scene: &'s Scene, i: usize, params: &RunParams) -> Vec<&'s
 
 /// Radiance of the clip code in the frames' linearised units: the least a
 /// clipped channel holds.
+/// The white point the probes' lights and evidence are found above, shared by
+/// frames through [`LightPairs`]: the frame's own white point on a walk with one
+/// gain; with each frame's own gain, the nearest of a ladder of 1/16 EV steps
+/// (within 2.2% of the frame's), so frames of similar exposure share their
+/// lights, the cache stays bounded, and no frame's lights depend on which frame
+/// came first (they did: the first frame's white point served every frame).
+fn light_white(white: f32, own_gain: bool) -> f32 {
+    if !own_gain || !(white.is_finite() && white > 0.0) {
+        return white;
+    }
+    (2.0f32).powf((white.log2() * 16.0).round() / 16.0)
+}
+
 fn white_point(scene: &Scene, frame: &Frame, params: &RunParams) -> f32 {
     scene
         .response
@@ -708,13 +721,15 @@ pub fn run_shard(
 }
 
 /// The lights of probe pairs ([`PairLights`]), found once per ordered pair of probe
-/// indices and shared by every frame between the two (a run's white point and
-/// fusion settings do not change): fitting a light's surface does not depend on the
-/// frame, and was most of fusion's time per frame on kitchen and flat.
+/// indices and white point, and shared by every frame between the two with that
+/// white point (a run's fusion settings do not change; its white point does when
+/// each frame has its own gain, [`light_white`]): fitting a light's surface does
+/// not depend on the frame, and was most of fusion's time per frame on kitchen
+/// and flat.
 #[derive(Default)]
 pub struct LightPairs {
-    cells: Mutex<HashMap<(usize, usize), PairCell>>,
-    probes: Mutex<HashMap<usize, ProbeCell>>,
+    cells: Mutex<HashMap<(usize, usize, u32), PairCell>>,
+    probes: Mutex<HashMap<(usize, u32), ProbeCell>>,
     spent: Mutex<(f64, usize)>,
 }
 
@@ -726,11 +741,17 @@ type ProbeCell = Arc<OnceLock<Arc<ProbeEvidence>>>;
 type PairCell = Arc<OnceLock<Arc<PairLights>>>;
 
 impl LightPairs {
-    /// The lights of probes `(a, b)`, made by `make` the first time they are asked for.
-    pub fn get(&self, key: (usize, usize), make: impl FnOnce() -> PairLights) -> Arc<PairLights> {
+    /// The lights of probes `(a, b)` above `white`, made by `make` the first time
+    /// they are asked for.
+    pub fn get(
+        &self,
+        key: (usize, usize),
+        white: f32,
+        make: impl FnOnce() -> PairLights,
+    ) -> Arc<PairLights> {
         let cell = {
             let mut cells = self.cells.lock().unwrap_or_else(|e| e.into_inner());
-            cells.entry(key).or_default().clone()
+            cells.entry((key.0, key.1, white.to_bits())).or_default().clone()
         };
         cell.get_or_init(|| {
             let t = Instant::now();
@@ -743,12 +764,17 @@ impl LightPairs {
         .clone()
     }
 
-    /// The evidence of probe `index` ([`ProbeEvidence`]), made by `make` the
-    /// first time it is asked for.
-    pub fn probe(&self, index: usize, make: impl FnOnce() -> ProbeEvidence) -> Arc<ProbeEvidence> {
+    /// The evidence of probe `index` above `white` ([`ProbeEvidence`]), made by
+    /// `make` the first time it is asked for.
+    pub fn probe(
+        &self,
+        index: usize,
+        white: f32,
+        make: impl FnOnce() -> ProbeEvidence,
+    ) -> Arc<ProbeEvidence> {
         let cell = {
             let mut cells = self.probes.lock().unwrap_or_else(|e| e.into_inner());
-            cells.entry(index).or_default().clone()
+            cells.entry((index, white.to_bits())).or_default().clone()
         };
         cell.get_or_init(|| Arc::new(make())).clone()
     }
@@ -844,6 +870,7 @@ fn predict_held(
         let (est, wr, fr, _) =
             predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[], &[])?;
         let white = white_point(scene, frame, params);
+        let lw = light_white(white, frame.gain.is_some());
         // Lights seen by both probes, placed in 3-D and carried to this frame.
         let t = Instant::now();
         let probes: Vec<_> = used
@@ -856,8 +883,8 @@ fn predict_held(
         let (mut placed, mut near) = (Vec::new(), Vec::new());
         if params.fusion.place_lights && probes.len() >= 2 {
             let (a, b) = (view(&probes[0]), view(&probes[1]));
-            let pair = pairs.get((used[0], used[1]), || {
-                pair_lights(a, b, white, &params.fusion)
+            let pair = pairs.get((used[0], used[1]), lw, || {
+                pair_lights(a, b, lw, &params.fusion)
             });
             placed = pair.at_frame(a, b, &frame.pose);
             near = pair.near();
@@ -868,8 +895,8 @@ fn predict_held(
             for j in 2..k {
                 for i in 0..j {
                     let (a, b) = (view(&probes[i]), view(&probes[j]));
-                    let pair = pairs.get((used[i], used[j]), || {
-                        pair_lights(a, b, white, &params.fusion)
+                    let pair = pairs.get((used[i], used[j]), lw, || {
+                        pair_lights(a, b, lw, &params.fusion)
                     });
                     for mut l in pair.at_frame(a, b, &frame.pose) {
                         if l.distance.is_none()
@@ -902,7 +929,7 @@ fn predict_held(
             .iter()
             .zip(&probes)
             .take(params.fusion.far_probes.max(2))
-            .map(|(&u, pp)| pairs.probe(u, || ProbeEvidence::new(&pp.image, &pp.pose, white)))
+            .map(|(&u, pp)| pairs.probe(u, lw, || ProbeEvidence::new(&pp.image, &pp.pose, lw)))
             .collect();
         let refs: Vec<&ProbeEvidence> = probe_ev.iter().map(|e| &**e).collect();
         let evidence = Evidence {
@@ -1034,10 +1061,27 @@ mod tests {
         };
         use rayon::prelude::*;
         (0..64).into_par_iter().for_each(|k| {
-            pairs.get((k % 2, 1 - k % 2), make);
+            pairs.get((k % 2, 1 - k % 2), 1.0, make);
         });
         assert_eq!(made.load(Ordering::SeqCst), 2);
         assert_eq!(pairs.spent().1, 2);
+        // Another white point (a frame with its own gain) finds its own lights.
+        pairs.get((0, 1), 2.0, make);
+        pairs.get((0, 1), 2.0, make);
+        assert_eq!(made.load(Ordering::SeqCst), 3);
+    }
+
+    #[test]
+    fn frames_with_their_own_gain_share_lights_on_a_ladder_of_sixteenth_stops() {
+        // One gain for the walk: the frame's white point as it is.
+        assert_eq!(light_white(0.7371, false), 0.7371);
+        // Each frame's own: within 1/32 EV (2.2%), the same for nearby exposures.
+        for w in [1e-3f32, 0.05, 0.7371, 1.0, 3.3, 250.0] {
+            let q = light_white(w, true);
+            assert!((q / w - 1.0).abs() < 0.022, "{w} -> {q}");
+            assert_eq!(light_white(w * 1.001, true), q, "{w}");
+        }
+        assert_ne!(light_white(1.0, true), light_white(1.05, true));
     }
 }
 
