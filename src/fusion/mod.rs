@@ -135,10 +135,12 @@ pub struct FusionParams {
     /// other; it is used only where its direction falls within
     /// `extra_reach_deg` of a clipped region that no nearer light went to (a
     /// source brighter than the white point clips the frame where it is seen).
-    /// 2 = the nearest pair only. Chosen on the development scenes (irradiance
-    /// error mean 0.2070 -> 0.2018 with 3, 0.2017 with 4 or 6; validation
-    /// 0.1381 -> 0.1319; the shared scenes unchanged at 3 and 4); the reach
-    /// changes nothing between 1.5 and 6 degrees (docs/fusion-ledger.md).
+    /// 2 = the nearest pair only. Before `consistent_pairs`, 3 won on the
+    /// development scenes (irradiance error mean 0.2070 -> 0.2018; validation
+    /// 0.1381 -> 0.1319); with it, the lamps the nearest pair lost to specks
+    /// are placed by that pair and 3 ties with 2 (42 development scenes 0.1409
+    /// against 0.1408, 22 validation 0.1449 against 0.1453), so the default is
+    /// 2 (docs/fusion-ledger.md).
     #[serde(default = "default_light_probes")]
     pub light_probes: usize,
     /// See `light_probes` (degrees).
@@ -181,7 +183,7 @@ fn default_far_witness_m() -> f32 {
 }
 
 fn default_light_probes() -> usize {
-    3
+    2
 }
 
 fn default_max_move_deg() -> f32 {
