@@ -2,8 +2,8 @@
 //! lights placed in 3-D that fall in it, else from the estimate's light
 //! attributed to it ([`super::regions`]).
 
-use super::regions::{Disc, Far, Kind, Pixels, Region};
 use super::lights::SkyView;
+use super::regions::{Disc, Far, Kind, Pixels, Region};
 use super::{Fallback, FrameLight, FusionParams, LightReport};
 use crate::sphere::dir_to_uv;
 
@@ -196,7 +196,9 @@ fn nearest_clipped(px: &Pixels, d: glam::Vec3, reach_deg: f32) -> Option<usize> 
     let (mut best, mut out) = (cos_max, None);
     for y in (cy - ry).max(0)..=(cy + ry).min(h as isize - 1) {
         let lat = (0.5 - (y as f32 + 0.5) / h as f32) * std::f32::consts::PI;
-        let c = (lat.abs() + reach_deg.to_radians()).min(std::f32::consts::FRAC_PI_2).cos();
+        let c = (lat.abs() + reach_deg.to_radians())
+            .min(std::f32::consts::FRAC_PI_2)
+            .cos();
         let rx = if c < 1e-3 {
             w as isize
         } else {
@@ -226,7 +228,13 @@ fn far_covered(px: &Pixels, sky: Option<&SkyView>, p: &FusionParams) -> Vec<bool
     let Some(sky) = sky else {
         return Vec::new();
     };
-    let n = px.lab.iter().filter(|&&l| l != u32::MAX).map(|&l| l as usize + 1).max().unwrap_or(0);
+    let n = px
+        .lab
+        .iter()
+        .filter(|&&l| l != u32::MAX)
+        .map(|&l| l as usize + 1)
+        .max()
+        .unwrap_or(0);
     let mut cover = vec![(0.0f64, 0.0f64); n];
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };

@@ -1498,9 +1498,16 @@ fn a_farther_pairs_light_fills_only_a_clipped_region_at_its_direction_that_no_ne
         ..compact_light(w, h, at, power, 1e3)
     };
     let fuse = |lights: &[FrameLight]| {
-        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, lights, None, None, &p)
-            .unwrap()
-            .1
+        fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            lights,
+            None,
+            None,
+            &p,
+        )
+        .unwrap()
+        .1
     };
     let region_of = |rep: &FusionReport, x: f32| {
         rep.blobs
@@ -1515,12 +1522,24 @@ fn a_farther_pairs_light_fills_only_a_clipped_region_at_its_direction_that_no_ne
     ];
     let rep = fuse(&lights);
     let (a, b) = (region_of(&rep, 40.0), region_of(&rep, 90.0));
-    assert!((rep.blobs[a].filled_power - 1.0).abs() < 0.02, "{:?}", rep.blobs[a]);
+    assert!(
+        (rep.blobs[a].filled_power - 1.0).abs() < 0.02,
+        "{:?}",
+        rep.blobs[a]
+    );
     assert!(!rep.blobs[b].placed, "{:?}", rep.blobs[b]);
     // Within a degree of the second lamp it is that lamp's light; in the
     // first lamp's region it adds nothing to the nearer pair's light.
     let rep = fuse(&[lights[0], extra((91, 20), 2.0), extra((40, 21), 5.0)]);
-    assert!((rep.blobs[a].filled_power - 1.0).abs() < 0.02, "{:?}", rep.blobs[a]);
+    assert!(
+        (rep.blobs[a].filled_power - 1.0).abs() < 0.02,
+        "{:?}",
+        rep.blobs[a]
+    );
     assert!(rep.blobs[b].placed);
-    assert!((rep.blobs[b].filled_power - 2.0).abs() < 0.04, "{:?}", rep.blobs[b]);
+    assert!(
+        (rep.blobs[b].filled_power - 2.0).abs() < 0.04,
+        "{:?}",
+        rep.blobs[b]
+    );
 }

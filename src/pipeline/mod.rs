@@ -751,7 +751,10 @@ impl LightPairs {
     ) -> Arc<PairLights> {
         let cell = {
             let mut cells = self.cells.lock().unwrap_or_else(|e| e.into_inner());
-            cells.entry((key.0, key.1, white.to_bits())).or_default().clone()
+            cells
+                .entry((key.0, key.1, white.to_bits()))
+                .or_default()
+                .clone()
         };
         cell.get_or_init(|| {
             let t = Instant::now();
@@ -899,9 +902,7 @@ fn predict_held(
                         pair_lights(a, b, lw, &params.fusion)
                     });
                     for mut l in pair.at_frame(a, b, &frame.pose) {
-                        if l.distance.is_none()
-                            || placed.iter().any(|q| q.dir.dot(l.dir) >= same)
-                        {
+                        if l.distance.is_none() || placed.iter().any(|q| q.dir.dot(l.dir) >= same) {
                             continue;
                         }
                         l.extra = true;

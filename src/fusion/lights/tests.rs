@@ -647,7 +647,11 @@ fn a_speck_whose_ray_passes_nearer_a_lamp_does_not_take_the_lamp_from_its_pair()
     let placed = triangulate(&a, pa, &b, pb, 0.2, 2.0);
     assert_eq!(placed.len(), 1, "{placed:?}");
     assert_eq!(placed[0].from, (0, 1));
-    assert!(placed[0].position.distance(lamp) < 0.02, "{:?}", placed[0].position);
+    assert!(
+        placed[0].position.distance(lamp) < 0.02,
+        "{:?}",
+        placed[0].position
+    );
     // Without the intensity test the speck wins the nearest-rays race.
     let careless = triangulate(&a, pa, &b, pb, 0.2, f64::INFINITY);
     assert_eq!(careless.len(), 1);
