@@ -2,8 +2,7 @@
 //! lights placed in 3-D that fall in it, else from the estimate's light
 //! attributed to it ([`super::regions`]).
 
-use super::lights::SkyView;
-use super::regions::{Disc, Far, Kind, Pixels, Region};
+use super::regions::{Disc, Pixels, Region};
 use super::{Fallback, FrameLight, FusionParams, LightReport};
 use crate::sphere::dir_to_uv;
 
@@ -14,14 +13,12 @@ pub(super) fn assign_placed<'v>(
     px: &Pixels,
     regions: &mut [Region<'v>],
     placed: &'v [FrameLight<'v>],
-    sky: Option<&SkyView>,
     p: &FusionParams,
     fallbacks: &mut Vec<Fallback>,
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.min(p.max_move_deg).to_radians().cos();
     let mut report = Vec::with_capacity(placed.len());
-    let mut far: Option<Vec<bool>> = None;
     for light in placed {
         let (d, pw) = (light.dir, light.power);
         if !(pw.is_finite() && pw > 0.0) || !d.is_finite() {
@@ -33,21 +30,7 @@ pub(super) fn assign_placed<'v>(
             ((v * h as f32) as usize).min(h - 1),
         );
         let mut target = px.region(y * w + x);
-        if light.extra {
-            // A light of a farther probe pair: only a clipped region within
-            // reach of its direction, only one no nearer light went to, and
-            // only one the probes' far lookup does not cover (a window's sky
-            // is its far source's, looked up pixel by pixel: shared flat's
-            // window lost a third of its light to a farther pair's light).
-            target = target.or_else(|| nearest_clipped(px, d, p.extra_reach_deg));
-            let free = target.is_some_and(|o| {
-                let covered = far.get_or_insert_with(|| far_covered(px, sky, p));
-                !regions[o].placed.any && !covered.get(o).copied().unwrap_or(false)
-            });
-            if !free {
-                continue;
-            }
-        } else if target.is_none() {
+        if target.is_none() {
             let dn = d.normalize_or_zero();
             let mut best = cos_max;
             for (b, r) in regions.iter().enumerate() {
@@ -180,72 +163,4 @@ pub(super) fn target_power(regions: &mut [Region], fallbacks: &mut Vec<Fallback>
             })
         };
     }
-}
-
-/// The region of the core clipped pixel nearest to direction `d` within
-/// `reach_deg` degrees, if any.
-fn nearest_clipped(px: &Pixels, d: glam::Vec3, reach_deg: f32) -> Option<usize> {
-    let (w, h) = (px.w, px.h);
-    let d = d.normalize_or_zero();
-    let (u, v) = dir_to_uv(d);
-    let (cx, cy) = ((u * w as f32) as isize, (v * h as f32) as isize);
-    let cos_max = reach_deg.to_radians().cos();
-    // Rows within reach; columns within reach at the widest of those rows
-    // (the whole row near a pole).
-    let ry = (reach_deg / 180.0 * h as f32).ceil() as isize;
-    let (mut best, mut out) = (cos_max, None);
-    for y in (cy - ry).max(0)..=(cy + ry).min(h as isize - 1) {
-        let lat = (0.5 - (y as f32 + 0.5) / h as f32) * std::f32::consts::PI;
-        let c = (lat.abs() + reach_deg.to_radians())
-            .min(std::f32::consts::FRAC_PI_2)
-            .cos();
-        let rx = if c < 1e-3 {
-            w as isize
-        } else {
-            ((reach_deg / 360.0 * w as f32) / c).ceil() as isize
-        }
-        .min(w as isize / 2);
-        for dx in -rx..=rx {
-            let x = (cx + dx).rem_euclid(w as isize) as usize;
-            let i = y as usize * w + x;
-            if !px.core[i] {
-                continue;
-            }
-            let Some(o) = px.region(i) else { continue };
-            let cs = d.dot(px.dir(i));
-            if cs >= best {
-                best = cs;
-                out = Some(o);
-            }
-        }
-    }
-    out
-}
-
-/// For each region, whether the probes see a far source over at least
-/// `min_far_cover` of its fully clipped solid angle (as the fill will decide).
-fn far_covered(px: &Pixels, sky: Option<&SkyView>, p: &FusionParams) -> Vec<bool> {
-    let Some(sky) = sky else {
-        return Vec::new();
-    };
-    let n = px
-        .lab
-        .iter()
-        .filter(|&&l| l != u32::MAX)
-        .map(|&l| l as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let mut cover = vec![(0.0f64, 0.0f64); n];
-    for i in 0..px.w * px.h {
-        let Some(o) = px.region(i) else { continue };
-        if px.kinds[i] != Kind::Full {
-            continue;
-        }
-        let a = px.solid_angle(i);
-        cover[o].1 += a;
-        if sky.radiance(px.dir(i)).is_some() {
-            cover[o].0 += a;
-        }
-    }
-    cover.into_iter().map(|c| Far::covers(c, p)).collect()
 }

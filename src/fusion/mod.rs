@@ -127,45 +127,14 @@ pub struct FusionParams {
     /// its moves).
     #[serde(default = "default_max_move_ratio")]
     pub max_move_ratio: f64,
-    /// Lights are placed from every pair among the frame's nearest
-    /// `light_probes` probes, not only its nearest two: a lamp one pair does
-    /// not both see is still one object of the walk, placed by the pairs that
-    /// do. A light from a farther pair is the same source as one already placed
-    /// when their directions at the frame are within `track_deg` of each
-    /// other; it is used only where its direction falls within
-    /// `extra_reach_deg` of a clipped region that no nearer light went to (a
-    /// source brighter than the white point clips the frame where it is seen).
-    /// 2 = the nearest pair only. Before `consistent_pairs`, 3 won on the
-    /// development scenes (irradiance error mean 0.2070 -> 0.2018; validation
-    /// 0.1381 -> 0.1319); with it, the lamps the nearest pair lost to specks
-    /// are placed by that pair and 3 ties with 2 (42 development scenes 0.1409
-    /// against 0.1408, 22 validation 0.1449 against 0.1453), so the default is
-    /// 2 (docs/fusion-ledger.md).
-    #[serde(default = "default_light_probes")]
-    pub light_probes: usize,
-    /// See `light_probes` (degrees).
-    #[serde(default = "default_extra_reach_deg")]
-    pub extra_reach_deg: f32,
     /// Farthest a placed light is moved (degrees) into the nearest clipped
-    /// region when its direction falls on measured pixels. 15 with
-    /// `consistent_pairs` (more lights placed, more of them hidden from the
-    /// frame): the corpus's development split 0.2442 at 30, 0.2058 at 15,
+    /// region when its direction falls on measured pixels. 15 since pairs are
+    /// decided by intensity before they take their lights
+    /// ([`lights::triangulate`]: more lights placed, more of them hidden from
+    /// the frame): the corpus's development split 0.2442 at 30, 0.2058 at 15,
     /// 0.2061 at 8, 0.2074 at 4.
     #[serde(default = "default_max_move_deg")]
     pub max_move_deg: f32,
-    /// Two probes' lights are paired only when they agree on the light's
-    /// intensity within `max_intensity_ratio`, before either is taken: a
-    /// one-pixel speck whose ray passes nearer a lamp's than the lamp's own
-    /// pair cannot take the lamp from it ([`lights::triangulate`]). Off: the
-    /// pairs are taken by the gap alone and the disagreeing ones dropped
-    /// afterwards, with the lights they took. Chosen on the development
-    /// scenes of the corpus and of fresh seeds 24-63 (42 scenes: irradiance
-    /// error mean 0.1564 -> 0.1409 with moves up to 15 degrees; the corpus's
-    /// 16 alone 0.1999 -> 0.2053, s0017's lamp hidden behind a door frame then
-    /// placed in the lit wall beside it); validation (22) 0.1707 -> 0.1449
-    /// (docs/fusion-ledger.md).
-    #[serde(default = "default_true")]
-    pub consistent_pairs: bool,
     /// Hold every region's added light to the ledger's bounds ([`ledger`]): no
     /// pixel brighter than the probes measured, no region more power than the
     /// probes measured of its sources (in its fully clipped pixels, or all of
@@ -182,20 +151,8 @@ fn default_far_witness_m() -> f32 {
     0.4
 }
 
-fn default_light_probes() -> usize {
-    2
-}
-
 fn default_max_move_deg() -> f32 {
     15.0
-}
-
-fn default_true() -> bool {
-    true
-}
-
-fn default_extra_reach_deg() -> f32 {
-    3.0
 }
 
 fn default_max_move_ratio() -> f64 {
@@ -251,10 +208,7 @@ impl Default for FusionParams {
             far_witness_m: default_far_witness_m(),
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),
-            light_probes: default_light_probes(),
-            extra_reach_deg: default_extra_reach_deg(),
             max_move_deg: default_max_move_deg(),
-            consistent_pairs: true,
             ledger: None,
             walk: walk::WalkParams::default(),
         }
@@ -423,10 +377,6 @@ pub struct FrameLight<'a> {
     /// extrapolated.
     pub seen: [f64; 2],
     pub distance: Option<f32>,
-    /// Placed by a pair other than the frame's nearest two probes
-    /// ([`FusionParams::light_probes`]): it only goes to a region within
-    /// `extra_reach_deg` that no nearer light went to.
-    pub extra: bool,
 }
 
 /// The SDR frame as censored measurements: its codes, their radiance (the
@@ -507,7 +457,7 @@ pub fn fuse_with_lights(
     let frame = Measured { white, ..*frame };
     let (mut px, mut regions) = regions::find(&frame, estimate, p);
     let mut fallbacks = Vec::new();
-    let lights = budget::assign_placed(&px, &mut regions, placed, sky, p, &mut fallbacks);
+    let lights = budget::assign_placed(&px, &mut regions, placed, p, &mut fallbacks);
     budget::target_power(&mut regions, &mut fallbacks);
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);

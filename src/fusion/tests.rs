@@ -49,7 +49,6 @@ fn compact_light(
         view: None,
         seen: [power; 2],
         distance: Some(3.0),
-        extra: false,
     }
 }
 
@@ -91,7 +90,6 @@ fn a_placed_light_never_gets_more_than_its_radiance_over_the_region() {
         view: None,
         seen: [0.0; 2],
         distance: None,
-        extra: false,
     };
     let (_, rep) = fuse_with_lights(
         &Measured::new(&sdr, &lin, 1.0),
@@ -1065,7 +1063,6 @@ fn a_light_that_comes_into_view_mid_walk_lights_only_the_frames_that_see_it() {
         view: None,
         seen: [0.0; 2],
         distance: None,
-        extra: false,
     }];
     let mut added = Vec::new();
     for f in 0..10 {
@@ -1167,7 +1164,6 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32, sky_probes: usize) 
             view: None,
             seen: [0.0; 2],
             distance: None,
-            extra: false,
         })
         .into_iter()
         .collect();
@@ -1266,7 +1262,6 @@ fn a_lamp_merged_with_the_wall_it_lights_keeps_its_power_at_the_lamp() {
         view: None,
         seen: [0.0; 2],
         distance: None,
-        extra: false,
     };
     let p = FusionParams {
         margin_px: 0,
@@ -1481,65 +1476,4 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
     // Energy: the frame holds the two lamps' light once.
     let total = power_above(&out, 1.0);
     assert!(total < 1.1 * (left_power + filled(right)), "{total}");
-}
-
-#[test]
-fn a_farther_pairs_light_fills_only_a_clipped_region_at_its_direction_that_no_nearer_light_took() {
-    let (w, h) = (128, 64);
-    let (sdr, lin) = frame_with_lamps(w, h, &[(40, 20), (90, 20)], 1);
-    // The estimate holds no light near either lamp.
-    let est = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
-    let p = FusionParams {
-        margin_px: 0,
-        ..Default::default()
-    };
-    let extra = |at: (usize, usize), power: f64| FrameLight {
-        extra: true,
-        ..compact_light(w, h, at, power, 1e3)
-    };
-    let fuse = |lights: &[FrameLight]| {
-        fuse_with_lights(
-            &Measured::new(&sdr, &lin, 1.0),
-            &est,
-            lights,
-            None,
-            None,
-            &p,
-        )
-        .unwrap()
-        .1
-    };
-    let region_of = |rep: &FusionReport, x: f32| {
-        rep.blobs
-            .iter()
-            .position(|b| (b.centre.0 - x).abs() < 2.0)
-            .unwrap()
-    };
-    let lights = [
-        compact_light(w, h, (40, 20), 1.0, 1e3),
-        // Two pixels (5.6 degrees) beside the second lamp: outside the reach.
-        extra((93, 20), 2.0),
-    ];
-    let rep = fuse(&lights);
-    let (a, b) = (region_of(&rep, 40.0), region_of(&rep, 90.0));
-    assert!(
-        (rep.blobs[a].filled_power - 1.0).abs() < 0.02,
-        "{:?}",
-        rep.blobs[a]
-    );
-    assert!(!rep.blobs[b].placed, "{:?}", rep.blobs[b]);
-    // Within a degree of the second lamp it is that lamp's light; in the
-    // first lamp's region it adds nothing to the nearer pair's light.
-    let rep = fuse(&[lights[0], extra((91, 20), 2.0), extra((40, 21), 5.0)]);
-    assert!(
-        (rep.blobs[a].filled_power - 1.0).abs() < 0.02,
-        "{:?}",
-        rep.blobs[a]
-    );
-    assert!(rep.blobs[b].placed);
-    assert!(
-        (rep.blobs[b].filled_power - 2.0).abs() < 0.04,
-        "{:?}",
-        rep.blobs[b]
-    );
 }

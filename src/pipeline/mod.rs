@@ -891,25 +891,6 @@ fn predict_held(
             });
             placed = pair.at_frame(a, b, &frame.pose);
             near = pair.near();
-            // Lights of the farther pairs among the nearest `light_probes`
-            // probes, each source once (the nearer pair's placement first).
-            let k = params.fusion.light_probes.min(probes.len());
-            let same = params.fusion.walk.track_deg.to_radians().cos();
-            for j in 2..k {
-                for i in 0..j {
-                    let (a, b) = (view(&probes[i]), view(&probes[j]));
-                    let pair = pairs.get((used[i], used[j]), lw, || {
-                        pair_lights(a, b, lw, &params.fusion)
-                    });
-                    for mut l in pair.at_frame(a, b, &frame.pose) {
-                        if l.distance.is_none() || placed.iter().any(|q| q.dir.dot(l.dir) >= same) {
-                            continue;
-                        }
-                        l.extra = true;
-                        placed.push(l);
-                    }
-                }
-            }
         }
         // Far sources (sky through a window) are looked up in the nearest
         // `far_probes` probes.

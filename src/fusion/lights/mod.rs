@@ -247,15 +247,7 @@ pub fn pair_lights(a: View, b: View, white: f32, p: &FusionParams) -> PairLights
     // distance) saw different parts of it or different lights: the
     // inverse-square model does not hold, the estimate decides.
     let gap = p.max_gap_rel * pa.distance(pb);
-    let ratio = if p.consistent_pairs {
-        p.max_intensity_ratio
-    } else {
-        f64::INFINITY
-    };
-    for l in triangulate(&la, pa, &lb, pb, gap, ratio) {
-        if !l.consistent(p.max_intensity_ratio) {
-            continue;
-        }
+    for l in triangulate(&la, pa, &lb, pb, gap, p.max_intensity_ratio) {
         let (la, lb) = (&la[l.from.0], &lb[l.from.1]);
         let surface = (p.surface_px > 0 && la.pixels.len().min(lb.pixels.len()) >= p.surface_px)
             .then(|| {
@@ -331,7 +323,6 @@ impl PairLights {
                     }),
                     seen: [l.seen[0].0, l.seen[1].0],
                     distance: (!l.at_infinity).then(|| l.position.distance(frame.position)),
-                    extra: false,
                 }
             })
             .collect()
