@@ -7,9 +7,10 @@
 //! - **No pixel beyond its source** (a radiance ceiling per channel): radiance is
 //!   invariant along rays, so no pixel of the frame can be brighter than the
 //!   brightest radiance the probes measured, at the frame's pixel size (a source a
-//!   probe does not resolve looks brighter in a smaller pixel). A pixel of a
-//!   region holding a light placed in 3-D may also hold that light's power at the
-//!   frame in one pixel (a lamp the frame is nearer to than the probes were).
+//!   probe does not resolve looks brighter in a smaller pixel). A region's pixel
+//!   may also hold the region's whole budget (below) in one pixel: a source no
+//!   probe resolves looks brighter from nearer, but no pixel can hold more than
+//!   all the power the probes measured of its sources at the frame.
 //! - **Power booked to its evidence** (a budget per clipped region): the light
 //!   the region receives is at most the largest of what the probes measured of
 //!   the sources in its directions: a placed light's power at the frame (bounded
@@ -318,14 +319,17 @@ fn measured(r: &Region, partial: bool) -> f64 {
     }
 }
 
-/// The radiance ceiling per channel of region `r`'s pixels: the probes' peak,
-/// raised for a region holding a placed light to that light's power in its
-/// smallest pixel.
-fn ceiling(r: &Region, ev: &Evidence, min_sa: f64) -> [f32; 3] {
+/// The radiance ceiling per channel of region `r`'s pixels: the probes' peak
+/// (radiance is invariant along rays, so a source the probes resolve looks no
+/// brighter from anywhere), raised to what the region's sources hold in its
+/// smallest pixel: a source no probe resolves may look brighter from nearer,
+/// but no pixel holds more than the whole power the probes measured of its
+/// sources at the frame (`power`, the region's budget).
+fn ceiling(ev: &Evidence, min_sa: f64, power: f64) -> [f32; 3] {
     let mut c = ev.peak;
     let lum = luminance(c) as f64;
-    if r.placed.any && min_sa > 0.0 && lum > 0.0 && r.fill.target.is_finite() {
-        let m = (r.fill.target / min_sa / lum).max(1.0) as f32;
+    if min_sa > 0.0 && lum > 0.0 && power.is_finite() && power > 0.0 {
+        let m = (power / min_sa / lum).max(1.0) as f32;
         for v in c.iter_mut() {
             *v *= m;
         }
@@ -356,10 +360,10 @@ pub(super) fn apply(
             min_sa[o] = min_sa[o].min(px.solid_angle(i));
         }
     }
-    let ceil: Vec<[f32; 3]> = regions
+    let ceil: Vec<[f32; 3]> = budget
         .iter()
         .zip(&min_sa)
-        .map(|(r, &m)| ceiling(r, ev, m))
+        .map(|(&(_, b, _), &m)| ceiling(ev, m, b))
         .collect();
     let mut entries: Vec<LedgerEntry> = budget
         .iter()
