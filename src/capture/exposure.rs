@@ -72,6 +72,11 @@ pub struct ExposureOptions {
     /// development split does not improve (irradiance error 0.2443 -> 0.2437,
     /// p95 0.508 -> 0.584), so it is off by default.
     pub follow_flow: bool,
+    /// Fit the camera's lens vignetting (a falloff towards each lens's rim, the
+    /// same in every frame: [`super::vignetting`]) and take it out of each
+    /// frame's measurement against its probe. Off by default: the gains it
+    /// gives are reported, not yet used to decode the frames.
+    pub vignetting: bool,
 }
 
 impl Default for ExposureOptions {
@@ -83,6 +88,7 @@ impl Default for ExposureOptions {
             relative_floor: 0.01,
             parallax: 1.0,
             follow_flow: false,
+            vignetting: false,
         }
     }
 }
@@ -143,6 +149,9 @@ pub struct WalkExposure {
     /// frame's solved gain is taken out ([`response_fit`]): empty when no
     /// frame was measured against a probe.
     pub response_fit: Vec<CodeLevel>,
+    /// The lens vignetting fitted to the walk (`1 - k rim`, [`super::vignetting`])
+    /// and taken out of `measured`, with [`ExposureOptions::vignetting`].
+    pub vignetting: Option<f64>,
 }
 
 /// The frames' blocks of one range of codes against the probes, their solved
@@ -270,6 +279,9 @@ pub fn frame_exposure(
     exposure_and_levels(sdr, probe_in_frame, response, opts).0
 }
 
+/// Each voting block's luminance log ratio with its [`super::vignetting::rim`].
+type RimVotes = Vec<(f64, f32)>;
+
 /// [`frame_exposure`] and each voting block's mean luminance code (0-255)
 /// with its luminance log ratio: where the response is right, the ratio does
 /// not depend on the code.
@@ -278,13 +290,14 @@ fn exposure_and_levels(
     probe_in_frame: &HdrImage,
     response: &Response,
     opts: &ExposureOptions,
-) -> (FrameExposure, Vec<(f32, f64)>) {
+) -> (FrameExposure, Vec<(f32, f64)>, RimVotes) {
     let mut levels = Vec::new();
+    let mut rims = Vec::new();
     let (w, h) = (sdr.width(), sdr.height());
     // Blocks of a fixed angle, whatever the frame's width.
     let b = ((w as f64 * opts.block_deg / 360.0).round() as usize).max(2);
     if probe_in_frame.width() != w || probe_in_frame.height() != h || w < b || h < b {
-        return (FrameExposure::missing(), levels);
+        return (FrameExposure::missing(), levels, rims);
     }
     let decode: Vec<f64> = (0..256)
         .map(|c| response.decode(c as f32 / 255.0) as f64)
@@ -323,12 +336,14 @@ fn exposure_and_levels(
                 }
                 votes[3].push(lum);
                 levels.push(((code / (b * b) as f64) as f32, lum));
+                let centre = crate::sphere::pixel_to_dir(bx * b + b / 2, by * b + b / 2, w, h);
+                rims.push((lum, super::vignetting::rim(centre)));
             }
         }
     }
     let n = votes[3].len();
     if n == 0 {
-        return (FrameExposure::missing(), levels);
+        return (FrameExposure::missing(), levels, rims);
     }
     let sigma = (1.2533 * iqr(&mut votes[3].clone()) / 1.349 / (n as f64).sqrt()).max(opts.floor);
     let [r, g, bl, l] = &mut votes;
@@ -340,6 +355,7 @@ fn exposure_and_levels(
             blocks: n,
         },
         levels,
+        rims,
     )
 }
 
@@ -463,6 +479,7 @@ pub fn along_walk(
         filled: (0..n).filter(|&k| a0[k] == 0.0).collect(),
         spread_over_noise: if noise > 0.0 { spread / noise } else { 0.0 },
         response_fit: Vec::new(),
+        vignetting: None,
     }
 }
 
@@ -513,6 +530,7 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
     let mut relative = Vec::with_capacity(scene.frames.len());
     let mut distances = Vec::with_capacity(scene.frames.len());
     let mut levels = Vec::with_capacity(scene.frames.len());
+    let mut rims = Vec::with_capacity(scene.frames.len());
     let mut before: Option<(HdrImage, Option<HdrImage>, crate::scene::Pose)> = None;
     let decode: Vec<f32> = (0..256)
         .map(|c| scene.response.decode(c as f32 / 255.0))
@@ -567,8 +585,9 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
         } else {
             turned
         };
-        let (mut m, lv) = exposure_and_levels(&sdr, &turned, &scene.response, opts);
+        let (mut m, lv, rv) = exposure_and_levels(&sdr, &turned, &scene.response, opts);
         levels.push(lv);
+        rims.push(rv);
         distances.push(f.pose.position.distance(scene.probes[k].pose.position) as f64);
         m.sigma = m.sigma.max(opts.floor);
         measured.push(m);
@@ -593,8 +612,28 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
             scene.frames.len()
         )));
     }
+    // The lens falloff, the same in every frame, out of each frame's probe
+    // measurement (the frame-to-frame steps compare the same blocks of two
+    // frames, so it cancels there). It is achromatic: every channel moves by
+    // the luminance's shift.
+    let vignetting = opts.vignetting.then(|| super::vignetting::fit(&rims));
+    if let Some(k) = vignetting {
+        for (m, votes) in measured.iter_mut().zip(&rims) {
+            if m.usable() {
+                let shift = super::vignetting::frame_median(votes, k)
+                    - super::vignetting::frame_median(votes, 0.0);
+                if shift.is_finite() {
+                    m.log_luminance_gain += shift;
+                    for v in m.log_gain.iter_mut() {
+                        *v += shift;
+                    }
+                }
+            }
+        }
+    }
     let mut w = along_walk(&measured, &relative, opts);
     w.response_fit = response_fit(&levels, &w.gain, lo, hi);
+    w.vignetting = vignetting;
     Ok(w)
 }
 

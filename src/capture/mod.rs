@@ -16,6 +16,8 @@
 //! * [`fisheye`] turns a side-by-side dual-fisheye image (what two-lens cameras
 //!   such as the Gear 360 store) into an equirect panorama
 //!   ([`fisheye::dual_fisheye_to_equirect`]).
+//! * [`vignetting`] fits a two-lens camera's falloff towards its lenses' rims
+//!   from the walk, for the per-frame exposure.
 
 pub mod calibrate;
 pub mod cli;
@@ -25,6 +27,7 @@ pub mod exposure;
 pub mod fisheye;
 pub mod localize;
 pub mod merge;
+pub mod vignetting;
 
 pub use cli::{run_merge, MergeArgs};
 pub use debevec::{recover, RecoverOptions, Recovery, ResponseCurve};

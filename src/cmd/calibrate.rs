@@ -37,6 +37,11 @@ pub struct CalibrateArgs {
     /// lamps; see docs/consumer-video.md).
     #[arg(long, requires = "per_frame")]
     pub follow_flow: bool,
+    /// With --per-frame: fit the camera's lens vignetting (a falloff towards
+    /// each lens's rim, lenses along the camera's front and back) and take it
+    /// out of the gains (see docs/consumer-video.md).
+    #[arg(long, requires = "per_frame")]
+    pub vignetting: bool,
 }
 
 /// Runs the command (progress and notes on stderr unless `quiet`).
@@ -46,11 +51,13 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
         per_frame,
         json,
         follow_flow,
+        vignetting,
     } = a;
     let scene = lumiprobe::pipeline::plan::load_scene(&scene, !quiet)?;
     if per_frame {
         let opts = ExposureOptions {
             follow_flow,
+            vignetting,
             ..ExposureOptions::default()
         };
         let w = walk_exposure(&scene, &opts)?;
@@ -88,6 +95,13 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
                 "one gain serves the walk"
             }
         );
+        if let Some(k) = w.vignetting {
+            println!(
+                "lens vignetting fitted to the walk: 1 - {k:.2} (angle from the nearer lens axis / 90 deg)^2, \
+                 {:.2} EV at the seam; taken out of the gains above",
+                -(1.0 - k).max(1e-6).log2()
+            );
+        }
         // The response the frames were decoded with, against the walk itself.
         let misfit = w.response_misfit_ev(MIN_LEVEL_BLOCKS);
         let levels: Vec<String> = w
@@ -126,6 +140,7 @@ pub fn run(a: CalibrateArgs, quiet: bool) -> Result<()> {
                 "spread_over_noise": w.spread_over_noise,
                 "swing_ev": w.swing_ev,
                 "response_fit": w.response_fit,
+                "vignetting": w.vignetting,
                 "response_misfit_ev": misfit,
                 "varies": w.varies(),
                 "outliers": w.outliers,
