@@ -144,6 +144,7 @@ fn scene_of(s: &SynthScene) -> Scene {
         path_gain: s.path_gain,
         probe_unit: "as given (in memory)".into(),
         warnings: Vec::new(),
+        vignetting: None,
     }
 }
 

@@ -6,7 +6,7 @@ summarised per split: irradiance error mean (of scene means), p95 (mean of scene
 p95s), worst frame, flicker mean / worst (frame-to-frame irradiance change the
 truth does not make), and the linearised SDR frame's error.
 
-  video.py CORPUS OUT [--lumiprobe BIN] [--modes off,on] [--seeds-from CORPUS]
+  video.py CORPUS OUT [--lumiprobe BIN] [--modes off,on,vig] [--seeds-from CORPUS]
            [--only s0001,s0003] [-- consumer_variant options]
 
 OUT/variants/<scene> holds the variants (made once; delete to remake),
@@ -72,8 +72,11 @@ def main():
             run = os.path.join(a.out, "runs", f"{name}-{m}")
             ev = os.path.join(run, "eval.txt")
             if not os.path.isfile(ev):
+                # Mode "vig": each frame's own gain with the lens vignetting
+                # fitted and divided out (`run --vignetting`).
+                exposure = ["--frame-exposure", "on", "--vignetting"] if m == "vig" else ["--frame-exposure", m]
                 subprocess.run([a.lumiprobe, "run", var, "--method", "fusion", "--out", run,
-                                "--calibrate", "--frame-exposure", m, "-q"], check=True)
+                                "--calibrate", "-q"] + exposure, check=True)
                 text = subprocess.run([a.lumiprobe, "eval", var, "--pred", f"fusion={run}", "-q"],
                                       check=True, capture_output=True, text=True).stdout
                 with open(ev + ".tmp", "w") as f:

@@ -13,6 +13,7 @@
 //! every frame), searched on a grid: parallax and passers-by scatter votes
 //! whatever their rim, the falloff only along it.
 
+use crate::image::HdrImage;
 use glam::Vec3;
 
 /// Largest falloff searched (`1 - k` at the seam): 0.6 is 1.3 EV.
@@ -63,6 +64,23 @@ pub fn fit(frames: &[Vec<(f64, f32)>]) -> f64 {
 /// The median of `votes` with a falloff `k` taken out (NaN without votes).
 pub fn frame_median(votes: &[(f64, f32)], k: f64) -> f64 {
     median(&mut corrected(votes, k))
+}
+
+/// Divides a panorama (camera axes) by the falloff `1 - k rim`: what a lens
+/// without vignetting would have recorded. Nothing changes for `k` not in
+/// (0, 1).
+pub fn divide_out(img: &mut HdrImage, k: f32) {
+    if !(k > 0.0 && k < 1.0) {
+        return;
+    }
+    let (w, h) = (img.width(), img.height());
+    for y in 0..h {
+        for x in 0..w {
+            let f = 1.0 - k * rim(crate::sphere::pixel_to_dir(x, y, w, h));
+            let v = img.get(x, y);
+            img.set(x, y, v.map(|c| c / f));
+        }
+    }
 }
 
 fn corrected(votes: &[(f64, f32)], k: f64) -> Vec<f64> {
@@ -120,6 +138,29 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_vignetted_panorama_divided_by_its_falloff_is_what_the_lens_saw() {
+        let (w, h) = (32, 16);
+        let truth = HdrImage::from_fn(w, h, |x, y| [1.0 + x as f32, 2.0, 0.5 + y as f32]);
+        let k = 0.3;
+        let mut img = HdrImage::from_fn(w, h, |x, y| {
+            let f = 1.0 - k * rim(crate::sphere::pixel_to_dir(x, y, w, h));
+            truth.get(x, y).map(|v| v * f)
+        });
+        assert!(img.get(w / 4, h / 2)[1] < 1.5, "the seam is darker");
+        divide_out(&mut img, k);
+        for (a, b) in img.pixels().zip(truth.pixels()) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() < 1e-4 * b[c], "{a:?} vs {b:?}");
+            }
+        }
+        // Outside (0, 1) nothing changes.
+        let before = img.clone();
+        divide_out(&mut img, 0.0);
+        divide_out(&mut img, 1.0);
+        assert!(img == before);
     }
 
     #[test]

@@ -47,6 +47,11 @@ pub struct RunArgs {
     /// With --calibrate, each frame's own exposure (auto-exposing cameras): off (default), on, auto
     #[arg(long, value_enum, default_value_t = FrameExposure::Off, requires = "calibrate", hide_possible_values = true, hide_default_value = true)]
     pub frame_exposure: FrameExposure,
+    /// With --frame-exposure, fit the lenses' vignetting and divide it out
+    /// (an experiment, off until it wins: hidden from --help;
+    /// docs/consumer-video.md)
+    #[arg(long, requires = "calibrate", hide = true)]
+    pub vignetting: bool,
     /// Compression of the per-frame EXR files. On lumiprobe's outputs ZIP is
     /// the smallest (a quarter of the raw size for kitchen at 7776x3888) and
     /// PIZ writes 3x faster at 1.2x ZIP's size; none is the fastest.
@@ -72,6 +77,7 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
         size,
         calibrate,
         frame_exposure,
+        vignetting,
         exr_compression,
         dry_run,
         shard,
@@ -126,7 +132,10 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
         if frame_exposure != FrameExposure::Off {
             let w = lumiprobe::capture::exposure::walk_exposure(
                 &scene,
-                &lumiprobe::capture::exposure::ExposureOptions::default(),
+                &lumiprobe::capture::exposure::ExposureOptions {
+                    vignetting,
+                    ..Default::default()
+                },
             )?;
             let used = frame_exposure == FrameExposure::On || w.varies();
             if !quiet {
@@ -141,6 +150,10 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
                 );
             }
             if used {
+                scene.vignetting = w.vignetting.map(|k| k as f32);
+                if let (Some(k), false) = (w.vignetting, quiet) {
+                    eprintln!("lens vignetting fitted to the walk: 1 - {k:.2} rim, divided out of the frames");
+                }
                 for (f, g) in scene.frames.iter_mut().zip(&w.gain) {
                     if g.iter().all(|v| v.is_finite() && *v > 0.0) {
                         f.gain = Some(*g);

@@ -258,10 +258,14 @@ pub fn resize_sdr(sdr: &SdrImage, w: usize, h: usize) -> SdrImage {
 /// gain per channel where it has one (clipped pixels stay at the white point's
 /// radiance).
 pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
-    match frame.gain {
+    let mut lin = match frame.gain {
         None => io::sdr_to_linear(sdr, &scene.response, scene.path_gain),
         Some(g) => io::sdr_to_linear_rgb(sdr, &scene.response, g),
+    };
+    if let Some(k) = scene.vignetting {
+        crate::capture::vignetting::divide_out(&mut lin, k);
     }
+    lin
 }
 
 /// Reads a probe's HDR panorama, repairs invalid samples and resamples it.
@@ -353,6 +357,9 @@ fn frame_inputs(
         format!("{:?} {} {:?}", scene.response, scene.path_gain, frame.gain),
         program_stamp().to_string(),
     ];
+    if let Some(k) = scene.vignetting {
+        parts.push(format!("vignetting {k}"));
+    }
     for &u in &used {
         let m = &scene.probes[u];
         parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());

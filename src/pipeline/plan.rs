@@ -925,6 +925,7 @@ pub fn prepare(m: &Manifest, dry_run: bool) -> Result<(Option<Scene>, Plan)> {
                 )
             })
             .collect(),
+        vignetting: None,
     };
     match m.gain {
         GainChoice::Value(g) => {

@@ -119,6 +119,10 @@ pub struct Scene {
     pub probe_unit: String,
     /// Things the loader repaired or assumed, for the report.
     pub warnings: Vec<String>,
+    /// A two-lens camera's falloff towards its lenses' rims, `k` in
+    /// `1 - k rim` ([`crate::capture::vignetting`]), divided out of the frames
+    /// when they are decoded; `None` (what a scene file gives): none.
+    pub vignetting: Option<f32>,
 }
 
 #[derive(Deserialize)]
@@ -373,6 +377,7 @@ impl Scene {
             path_gain,
             probe_unit: "as given (HDR files)".into(),
             warnings,
+            vignetting: None,
         })
     }
 
