@@ -613,9 +613,10 @@ pub fn walk_exposure(scene: &Scene, opts: &ExposureOptions) -> Result<WalkExposu
         )));
     }
     // The lens falloff, the same in every frame, out of each frame's probe
-    // measurement (the frame-to-frame steps compare the same blocks of two
-    // frames, so it cancels there). It is achromatic: every channel moves by
-    // the luminance's shift.
+    // measurement. The frame-to-frame steps are left as they are: the frame
+    // before is turned into this frame's axes, so the falloffs cancel only as
+    // far as the camera did not turn between them (a step is a small turn).
+    // It is achromatic: every channel moves by the luminance's shift.
     let vignetting = opts.vignetting.then(|| super::vignetting::fit(&rims));
     if let Some(k) = vignetting {
         for (m, votes) in measured.iter_mut().zip(&rims) {

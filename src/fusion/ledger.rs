@@ -7,10 +7,12 @@
 //! - **No pixel beyond its source** (a radiance ceiling per channel): radiance is
 //!   invariant along rays, so no pixel of the frame can be brighter than the
 //!   brightest radiance the probes measured, at the frame's pixel size (a source a
-//!   probe does not resolve looks brighter in a smaller pixel). A region's pixel
-//!   may also hold the region's whole budget (below) in one pixel: a source no
-//!   probe resolves looks brighter from nearer, but no pixel can hold more than
-//!   all the power the probes measured of its sources at the frame.
+//!   probe does not resolve looks brighter in a smaller pixel). A region holding
+//!   a light placed in 3-D may hold that light's power at the frame in one pixel
+//!   (a lamp the frame is nearer to than the probes were); any other region
+//!   that cannot hold its budget (below) at the peak over its solid angle holds
+//!   a source no probe resolved, seen from nearer: its pixels may hold up to the
+//!   whole budget in one pixel, and no more.
 //! - **Power booked to its evidence** (a budget per clipped region): the light
 //!   the region receives is at most the largest of what the probes measured of
 //!   the sources in its directions: a placed light's power at the frame (bounded
@@ -321,17 +323,26 @@ fn measured(r: &Region, partial: bool) -> f64 {
 
 /// The radiance ceiling per channel of region `r`'s pixels: the probes' peak
 /// (radiance is invariant along rays, so a source the probes resolve looks no
-/// brighter from anywhere), raised to what the region's sources hold in its
-/// smallest pixel: a source no probe resolves may look brighter from nearer,
-/// but no pixel holds more than the whole power the probes measured of its
-/// sources at the frame (`power`, the region's budget).
-fn ceiling(ev: &Evidence, min_sa: f64, power: f64) -> [f32; 3] {
+/// brighter from anywhere). A light placed in 3-D may be nearer the frame than
+/// the probes: its region's pixels may hold the power it is to receive
+/// (`r.fill.target`) in one pixel. Any other region is raised only where it
+/// cannot hold its sources' power (`power`, its budget) at the peak over its
+/// solid angle: a source no probe resolved, seen from nearer; then a pixel may
+/// hold up to all of that power, in the region's smallest pixel (`min_sa`).
+fn ceiling(r: &Region, ev: &Evidence, min_sa: f64, power: f64) -> [f32; 3] {
     let mut c = ev.peak;
     let lum = luminance(c) as f64;
-    if min_sa > 0.0 && lum > 0.0 && power.is_finite() && power > 0.0 {
-        let m = (power / min_sa / lum).max(1.0) as f32;
+    let power = if r.placed.any {
+        r.fill.target
+    } else if power.is_finite() && power > lum * r.area {
+        power
+    } else {
+        0.0
+    };
+    if power.is_finite() && power > 0.0 && min_sa > 0.0 && lum > 0.0 {
+        let m = (power / min_sa / lum).clamp(1.0, f32::MAX as f64) as f32;
         for v in c.iter_mut() {
-            *v *= m;
+            *v = (*v * m).min(f32::MAX);
         }
     }
     c
@@ -363,7 +374,8 @@ pub(super) fn apply(
     let ceil: Vec<[f32; 3]> = budget
         .iter()
         .zip(&min_sa)
-        .map(|(&(_, b, _), &m)| ceiling(ev, m, b))
+        .zip(regions)
+        .map(|((&(_, b, _), &m), r)| ceiling(r, ev, m, b))
         .collect();
     let mut entries: Vec<LedgerEntry> = budget
         .iter()

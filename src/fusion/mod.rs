@@ -136,13 +136,14 @@ pub struct FusionParams {
     #[serde(default = "default_max_move_deg")]
     pub max_move_deg: f32,
     /// Hold every region's added light to the ledger's bounds ([`ledger`]): no
-    /// pixel brighter than its sources allow (the probes' peak, or all of its
-    /// region's budget in one pixel), no region more power than the probes
+    /// pixel brighter than its sources allow (the probes' peak, or the power of
+    /// a light placed nearer or a source no probe resolved, in one pixel), no
+    /// region more power than the probes
     /// measured of its sources (in its fully clipped pixels, or all of them).
     /// `None` (`--set fusion.ledger=null`): the ledger is only reported. `full`
     /// won on both splits of the corpus (docs/fusion-ledger.md: development
-    /// irradiance error 0.2052 -> 0.2041, validation 0.0994 -> 0.0967, worst
-    /// validation frame 0.757 -> 0.571; shared 0.0317 -> 0.0318).
+    /// irradiance error 0.2052 -> 0.2045, validation 0.0994 -> 0.0967, worst
+    /// validation frame 0.757 -> 0.571; shared 0.0317 -> 0.0319).
     #[serde(default = "default_ledger")]
     pub ledger: Option<ledger::Budgeted>,
     /// The walk as one sequence ([`walk`]): a region's jump in power that its

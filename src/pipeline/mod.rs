@@ -256,7 +256,9 @@ pub fn resize_sdr(sdr: &SdrImage, w: usize, h: usize) -> SdrImage {
 
 /// Radiance of an SDR frame: `response⁻¹(code / 255) / gain`, with `frame`'s own
 /// gain per channel where it has one (clipped pixels stay at the white point's
-/// radiance).
+/// radiance), divided by the scene's lens falloff when it has one (a clipped
+/// pixel then bounds its radiance from below at the white point over the
+/// falloff).
 pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
     let mut lin = match frame.gain {
         None => io::sdr_to_linear(sdr, &scene.response, scene.path_gain),
