@@ -3,6 +3,20 @@ use crate::synth::rng::SplitMix64;
 
 type Edge = (u32, u32, f64, f64);
 
+/// A `w` x `h` grid of two labels with one feature channel, weight 1, no wrap.
+fn two_labels<'a>(w: usize, h: usize, data: &'a [f32], feat: &'a [f32]) -> GridEnergy<'a> {
+    GridEnergy {
+        width: w,
+        height: h,
+        labels: 2,
+        data,
+        features: feat,
+        channels: 1,
+        lambda: 1.0,
+        wrap_x: false,
+    }
+}
+
 fn cut_capacity(edges: &[Edge], terminals: &[(f64, f64)], src: &[bool]) -> f64 {
     let mut c = 0.0;
     for (i, &(s, t)) in terminals.iter().enumerate() {
@@ -517,16 +531,7 @@ fn strong_smoothness_gives_the_straight_boundary() {
     }
     // Feature 0 for label 0, 1 for label 1: a seam costs 2 per neighbour pair.
     let feat: Vec<f32> = (0..w * h * 2).map(|i| (i % 2) as f32).collect();
-    let e = GridEnergy {
-        width: w,
-        height: h,
-        labels: 2,
-        data: &data,
-        features: &feat,
-        channels: 1,
-        lambda: 1.0,
-        wrap_x: false,
-    };
+    let e = two_labels(w, h, &data, &feat);
     let truth: Vec<u8> = (0..w * h).map(|p| (p % w >= 16) as u8).collect();
     assert_ne!(argmin_labels(&e), truth, "the ablation keeps the noise");
     for opt in [Optimizer::Expansion, Optimizer::Swap] {
@@ -630,16 +635,7 @@ fn non_finite_features_cost_the_cap() {
     let mut feat = vec![0.0f32; w * h * 2];
     feat[2] = f32::NAN; // pixel 1, label 0
     feat[5] = f32::INFINITY; // pixel 2, label 1
-    let e = GridEnergy {
-        width: w,
-        height: h,
-        labels: 2,
-        data: &data,
-        features: &feat,
-        channels: 1,
-        lambda: 1.0,
-        wrap_x: false,
-    };
+    let e = two_labels(w, h, &data, &feat);
     // Seam between pixels 1 and 2: cap + cap.
     let (_, s) = energy(&e, &[0, 0, 1, 1]).unwrap();
     assert_eq!(s, 2.0 * SEAM_CAP);
