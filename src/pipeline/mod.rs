@@ -393,8 +393,6 @@ fn witness_frames<'s>(scene: &'s Scene, i: usize, params: &RunParams) -> Vec<&'s
         .collect()
 }
 
-/// Radiance of the clip code in the frames' linearised units: the least a
-/// clipped channel holds.
 /// The white point the probes' lights and evidence are found above, shared by
 /// frames through [`LightPairs`]: the frame's own white point on a walk with one
 /// gain; with each frame's own gain, the nearest of a ladder of 1/16 EV steps
@@ -408,6 +406,8 @@ fn light_white(white: f32, own_gain: bool) -> f32 {
     (2.0f32).powf((white.log2() * 16.0).round() / 16.0)
 }
 
+/// Radiance of the clip code in the frames' linearised units: the least a
+/// clipped channel holds.
 fn white_point(scene: &Scene, frame: &Frame, params: &RunParams) -> f32 {
     scene
         .response
