@@ -2,7 +2,7 @@
 //! lights placed in 3-D that fall in it, else from the estimate's light
 //! attributed to it ([`super::regions`]).
 
-use super::regions::{Disc, Pixels, Region};
+use super::regions::{Disc, Kind, Pixels, Region};
 use super::{Fallback, FrameLight, FusionParams, LightReport};
 use crate::sphere::dir_to_uv;
 
@@ -18,6 +18,7 @@ pub(super) fn assign_placed<'v>(
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.min(p.max_move_deg).to_radians().cos();
+    let full = full_pixels(px, regions.len());
     let mut report = Vec::with_capacity(placed.len());
     for light in placed {
         let (d, pw) = (light.dir, light.power);
@@ -50,6 +51,38 @@ pub(super) fn assign_placed<'v>(
             }
             _ => 0.0,
         };
+        // A compact light whose direction falls on a region's measured pixels
+        // (its margin, or partly clipped pixels) lands on the nearest of the
+        // region's fully clipped pixels, a move like any other: no farther
+        // than `max_move_deg` beyond its own angular radius. Else the frame
+        // measured where it would be: it is hidden from the frame. A light
+        // carried through its surface lands where the surface does; a region
+        // with no fully clipped pixel (a coloured lamp clips only some
+        // channels) holds it in its partly clipped pixels.
+        let gap_deg = match target {
+            Some(o) if px.region(y * w + x) == Some(o) && px.kinds[y * w + x] == Kind::Full => 0.0,
+            Some(o) => nearest_deg(px, &full[o], d),
+            None => 0.0,
+        };
+        if let Some(o) = target {
+            let solid = if light.radiance.is_finite() && light.radiance > 0.0 {
+                pw / light.radiance
+            } else {
+                0.0
+            };
+            let radius = (crate::sphere::disc_radius(solid) as f32).to_degrees();
+            let inside = px.region(y * w + x).is_some();
+            let holds = !full[o].is_empty();
+            if inside && holds && light.view.is_none() && gap_deg > p.max_move_deg + radius {
+                fallbacks.push(Fallback::Hidden {
+                    light: report.len(),
+                    region: o,
+                    power: pw,
+                    gap_deg,
+                });
+                target = None;
+            }
+        }
         // A light moved into a region is that region's light only if the
         // estimate's light there, when it has any, is of its size: else it is
         // another light. (An estimate with no light there says nothing.)
@@ -71,6 +104,7 @@ pub(super) fn assign_placed<'v>(
             power: pw,
             region: target,
             moved_deg,
+            gap_deg,
             probe_power: light.seen,
             distance: light.distance,
             facing: light.view.as_ref().and_then(|v| v.facing()),
@@ -115,6 +149,31 @@ pub(super) fn assign_placed<'v>(
         }
     }
     report
+}
+
+/// The fully clipped pixels of each of `n` regions: the pixels that could
+/// hold a light.
+fn full_pixels(px: &Pixels, n: usize) -> Vec<Vec<u32>> {
+    let mut out = vec![Vec::new(); n];
+    for i in 0..px.w * px.h {
+        if let Some(o) = px.region(i) {
+            if px.kinds[i] == Kind::Full {
+                out[o].push(i as u32);
+            }
+        }
+    }
+    out
+}
+
+/// The angle (degrees) from direction `d` to the nearest of `pixels`' centres
+/// (180 when there are none).
+fn nearest_deg(px: &Pixels, pixels: &[u32], d: glam::Vec3) -> f32 {
+    let d = d.normalize_or_zero();
+    let c = pixels
+        .iter()
+        .map(|&i| px.dir(i as usize).dot(d))
+        .fold(-1.0f32, f32::max);
+    c.clamp(-1.0, 1.0).acos().to_degrees()
 }
 
 /// `power` bounded by what the region can hold (`held`); a binding bound is

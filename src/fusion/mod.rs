@@ -266,6 +266,11 @@ pub struct LightReport {
     pub region: Option<usize>,
     /// How far it was moved to reach that region (degrees; 0 when it fell in it).
     pub moved_deg: f32,
+    /// The angle from its direction to the nearest fully clipped pixel of
+    /// the region it went to, or would have gone to when hidden (degrees; 0
+    /// with no region).
+    #[serde(default)]
+    pub gap_deg: f32,
     /// The powers the two probes that placed it measured.
     #[serde(default)]
     pub probe_power: [f64; 2],
@@ -292,6 +297,17 @@ pub enum Fallback {
         region: usize,
         power: f64,
         estimate_power: f64,
+    },
+    /// A compact placed light fell on a region's measured pixels farther
+    /// than `max_move_deg` (beyond its own radius) from any fully clipped
+    /// pixel of it: the frame measured where it would be, so it is hidden
+    /// from the frame and given to no region. Index into
+    /// [`FusionReport::lights`].
+    Hidden {
+        light: usize,
+        region: usize,
+        power: f64,
+        gap_deg: f32,
     },
     /// A region's placed power exceeded what the probes' mean radiance over its
     /// solid angle can hold; it holds the latter.

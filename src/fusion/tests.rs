@@ -1477,3 +1477,85 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
     let total = power_above(&out, 1.0);
     assert!(total < 1.1 * (left_power + filled(right)), "{total}");
 }
+
+#[test]
+fn a_lamp_hidden_behind_a_partly_clipped_facade_is_not_placed() {
+    // A clipped lamp (every channel) at column 40, and a facade clipped only
+    // in red running from it to column 62: one region. The probes placed a
+    // lamp at column 58, on the facade's measured pixels 37 degrees from any
+    // fully clipped pixel: the frame measured green and blue there, far below
+    // a lamp, so the lamp is hidden from the frame (behind the facade).
+    let (w, h) = (128, 64);
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    for y in 19..=21 {
+        for x in 43..=62 {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 180, 180]);
+            lin.set(x, y, [1.0, 0.5, 0.5]);
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (38..=42).contains(&x) && (18..=22).contains(&y) {
+            [50.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let lamp = power_above(&est, 1.0);
+    let run = |at: (usize, usize)| {
+        let light = compact_light(w, h, at, 2.0 * lamp, 5000.0);
+        let (out, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[light],
+            None,
+            None,
+            &p,
+        )
+        .unwrap();
+        let sa = row_solid_angles(w, h);
+        let on_facade: f64 = (19..=21)
+            .flat_map(|y| (50..=62).map(move |x| (x, y)))
+            .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
+            .sum();
+        (rep, on_facade, power_above(&out, 1.0))
+    };
+    let (rep, on_facade, total) = run((58, 20));
+    assert_eq!(rep.lights[0].region, None);
+    assert!(rep.lights[0].gap_deg > 30.0, "{}", rep.lights[0].gap_deg);
+    assert!(
+        rep.fallbacks.iter().any(|f| matches!(
+            f,
+            Fallback::Hidden {
+                light: 0,
+                region: 0,
+                ..
+            }
+        )),
+        "{:?}",
+        rep.fallbacks
+    );
+    assert!(on_facade < 0.05 * lamp, "{on_facade} on the facade");
+    assert!(total < 1.5 * lamp, "{total} added for a lamp of {lamp}");
+    // The same lamp placed beside the clipped lamp (4 pixels, 11 degrees, off
+    // by the pose error) is that lamp: it lands, with its power.
+    let (rep, _, total) = run((44, 20));
+    assert_eq!(rep.lights[0].region, Some(0));
+    assert!(
+        !rep.fallbacks
+            .iter()
+            .any(|f| matches!(f, Fallback::Hidden { .. })),
+        "{:?}",
+        rep.fallbacks
+    );
+    assert!(
+        total > 1.5 * lamp,
+        "{total} added for a lamp of {lamp} placed at {}",
+        2.0 * lamp
+    );
+}
