@@ -590,7 +590,12 @@ fn one_wrong_frame_in_a_walk_is_mended_by_its_neighbours_and_a_lamp_coming_into_
             mode,
             ..WalkParams::default()
         };
-        let holds = mends(&walk_regions(&first), &p);
+        let regions = walk_regions(&first);
+        // Frames 0.1 m apart.
+        let positions: Vec<glam::Vec3> = (0..regions.len())
+            .map(|t| glam::Vec3::new(0.1 * t as f32, 0.0, 0.0))
+            .collect();
+        let holds = mends(&regions, &positions, &p);
         // Only the wrong frame is held; the lamp entering at frame 2 is not.
         for (t, h) in holds.iter().enumerate() {
             assert_eq!(h.is_empty(), t != 4, "{mode:?} frame {t}: {h:?}");

@@ -44,7 +44,8 @@ pub(super) fn wanted(scene: &Scene, records: &[FrameRecord], p: &WalkParams) -> 
         .enumerate()
         .map(|(i, r)| regions(scene, i, r))
         .collect();
-    mends(&frames, p)
+    let positions: Vec<Vec3> = scene.frames.iter().map(|f| f.pose.position).collect();
+    mends(&frames, &positions, p)
 }
 
 /// The holds a frame's outputs were made with.
