@@ -234,3 +234,20 @@ fn every_command_repairs_nan_inf_and_negative_samples_with_one_counted_warning()
         );
     }
 }
+
+#[test]
+fn vignetting_without_each_frames_exposure_is_refused() {
+    // The falloff is fitted with each frame's own gain: without it the flag
+    // would be ignored.
+    refused(
+        &[
+            "run",
+            "no-such-scene",
+            "--out",
+            "x",
+            "--calibrate",
+            "--vignetting",
+        ],
+        &["--vignetting", "--frame-exposure"],
+    );
+}

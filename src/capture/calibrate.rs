@@ -14,6 +14,7 @@
 //! the median over frames; the spread of the frame estimates is reported so an
 //! unreliable calibration shows.
 
+use super::median;
 use crate::error::{Error, Result};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::Scene;
@@ -74,16 +75,6 @@ fn block_means(values: impl Fn(usize, usize) -> f64, w: usize, h: usize, b: usiz
         }
     }
     out
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// The log gain one frame votes for, or `None` without a usable block.

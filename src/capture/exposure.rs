@@ -36,6 +36,7 @@
 //! chain through its neighbours.
 
 use super::calibrate::{nearest_probe_in_frame, CalibrateOptions};
+use super::median;
 use crate::error::{Error, Result};
 use crate::image::{io, HdrImage, SdrImage};
 use crate::scene::Scene;
@@ -241,19 +242,6 @@ impl WalkExposure {
     /// [`WalkExposure::varies_by`] [`MIN_SWING_EV`].
     pub fn varies(&self) -> bool {
         self.varies_by(MIN_SWING_EV)
-    }
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
     }
 }
 

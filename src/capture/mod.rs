@@ -33,3 +33,18 @@ pub use cli::{run_merge, MergeArgs};
 pub use debevec::{recover, RecoverOptions, Recovery, ResponseCurve};
 pub use exif::{read_exposure, ExifExposure};
 pub use merge::{merge, Exposure, MergeOptions, MergeReport, Merged};
+
+/// The median of `v` (the mean of the two middle values for an even count;
+/// NaN when empty), sorting `v`.
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}

@@ -13,6 +13,7 @@
 //! every frame), searched on a grid: parallax and passers-by scatter votes
 //! whatever their rim, the falloff only along it.
 
+use super::median;
 use crate::image::HdrImage;
 use glam::Vec3;
 
@@ -88,14 +89,6 @@ fn corrected(votes: &[(f64, f32)], k: f64) -> Vec<f64> {
         .iter()
         .map(|&(v, r)| v - (1.0 - k * r as f64).ln())
         .collect()
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mid = v.len() / 2;
-    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 #[cfg(test)]

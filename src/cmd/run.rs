@@ -85,6 +85,12 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
         warp,
         flow,
     } = a;
+    if vignetting && frame_exposure == FrameExposure::Off {
+        return Err(Error::Invalid(
+            "--vignetting is fitted with each frame's own exposure: give --frame-exposure on (or auto)"
+                .into(),
+        ));
+    }
     let is_manifest = scene.extension().is_some_and(|e| e == "toml");
     let (mut scene, out, method, size) = if is_manifest {
         let m = lumiprobe::scene::manifest::Manifest::load(&scene)?;
@@ -147,6 +153,11 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
                     } else {
                         "one gain for the walk"
                     }
+                );
+            }
+            if !used && vignetting && !quiet {
+                eprintln!(
+                    "warning: --vignetting not applied: the frames' exposure did not vary beyond its noise, so one gain is used for the walk (give --frame-exposure on to fit it anyway)"
                 );
             }
             if used {

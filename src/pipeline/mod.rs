@@ -185,6 +185,10 @@ pub struct RunReport {
     pub probe_unit: String,
     /// Settings used.
     pub params: RunParams,
+    /// The lens vignetting divided out of the frames (`1 - k rim`,
+    /// [`crate::capture::vignetting`]), when one was fitted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vignetting: Option<f32>,
     /// One record per frame, in walk order.
     pub frames: Vec<FrameRecord>,
     /// Frames skipped because their outputs were already up to date.
@@ -689,6 +693,7 @@ fn run_named(
         scene: scene.name.clone(),
         probe_unit: scene.probe_unit.clone(),
         params: params.clone(),
+        vignetting: scene.vignetting,
         frames,
         resumed,
         warnings,
@@ -1060,6 +1065,59 @@ mod tests {
         pairs.get((0, 1), 2.0, make);
         pairs.get((0, 1), 2.0, make);
         assert_eq!(made.load(Ordering::SeqCst), 3);
+    }
+
+    #[test]
+    fn a_fitted_vignetting_is_divided_out_of_the_frames_and_keys_their_outputs() {
+        let frame = Frame {
+            id: "f".into(),
+            pose: crate::scene::Pose {
+                position: glam::Vec3::ZERO,
+                world_from_camera: glam::Mat3::IDENTITY,
+            },
+            sdr: PathBuf::from("/nonexistent/f.png"),
+            ground_truth: None,
+            gain: None,
+        };
+        let mut scene = Scene {
+            root: PathBuf::from("/nonexistent"),
+            name: "v".into(),
+            probes: Vec::new(),
+            frames: vec![frame.clone()],
+            response: Default::default(),
+            path_gain: 1.0,
+            probe_unit: String::new(),
+            warnings: Vec::new(),
+            vignetting: None,
+        };
+        let (w, h) = (64, 32);
+        let sdr = SdrImage::from_vec(w, h, vec![128; w * h * 3]).unwrap();
+        let plain = linearize(&sdr, &scene, &frame);
+        let key = |scene: &Scene| frame_inputs(scene, 0, &RunParams::default(), "s").1;
+        let before = key(&scene);
+        scene.vignetting = Some(0.3);
+        let lin = linearize(&sdr, &scene, &frame);
+        // On a lens axis (the panorama's centre looks along -z) nothing
+        // changes; at 90 degrees from both axes (a quarter of the width) the
+        // lens saw 1 - 0.3 of the light, so the radiance is 1 / 0.7 times.
+        let (cx, cy) = (w / 2, h / 2);
+        let axis = crate::capture::vignetting::rim(crate::sphere::pixel_to_dir(cx, cy, w, h));
+        assert!(axis < 0.01, "{axis}");
+        let side = crate::capture::vignetting::rim(crate::sphere::pixel_to_dir(w / 4, cy, w, h));
+        assert!(side > 0.9, "{side}");
+        for (x, want) in [
+            (cx, 1.0 / (1.0 - 0.3 * axis)),
+            (w / 4, 1.0 / (1.0 - 0.3 * side)),
+        ] {
+            let (a, b) = (lin.get(x, cy)[1], plain.get(x, cy)[1]);
+            assert!((a / b - want).abs() < 1e-4, "x {x}: {a} / {b} vs {want}");
+        }
+        assert!(lin.get(w / 4, cy)[1] > 1.35 * plain.get(w / 4, cy)[1]);
+        // A new falloff is a new input: the frame's outputs are made again.
+        assert_ne!(key(&scene), before);
+        let k3 = key(&scene);
+        scene.vignetting = Some(0.2);
+        assert_ne!(key(&scene), k3);
     }
 
     #[test]
