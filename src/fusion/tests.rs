@@ -52,6 +52,18 @@ fn compact_light(
     }
 }
 
+/// An estimate holding the lamp of `frame_with_lamp(w, h, (40, 20), 2)` at
+/// radiance 50 over a grey 0.2.
+fn lamp_estimate(w: usize, h: usize) -> HdrImage {
+    HdrImage::from_fn(w, h, |x, y| {
+        if (38..=42).contains(&x) && (18..=22).contains(&y) {
+            [50.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    })
+}
+
 fn power_above(img: &HdrImage, white: f32) -> f64 {
     let sa = row_solid_angles(img.width(), img.height());
     (0..img.width() * img.height())
@@ -66,13 +78,7 @@ fn power_above(img: &HdrImage, white: f32) -> f64 {
 fn a_placed_light_never_gets_more_than_its_radiance_over_the_region() {
     let (w, h) = (128, 64);
     let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let est = HdrImage::from_fn(w, h, |x, y| {
-        if (38..=42).contains(&x) && (18..=22).contains(&y) {
-            [50.0, 50.0, 50.0]
-        } else {
-            [0.2, 0.2, 0.2]
-        }
-    });
+    let est = lamp_estimate(w, h);
     let p = FusionParams {
         margin_px: 0,
         ..Default::default()
@@ -1302,13 +1308,7 @@ fn a_weak_light_beside_a_lamps_region_does_not_replace_the_lamps_power() {
     // faint light 10 pixels (28 degrees) beside it, outside every clipped region.
     let (w, h) = (128, 64);
     let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let est = HdrImage::from_fn(w, h, |x, y| {
-        if (38..=42).contains(&x) && (18..=22).contains(&y) {
-            [50.0; 3]
-        } else {
-            [0.2; 3]
-        }
-    });
+    let est = lamp_estimate(w, h);
     // Moves as far as 30 degrees, so the ratio test is what refuses it.
     let p = FusionParams {
         margin_px: 0,
@@ -1495,13 +1495,7 @@ fn a_lamp_hidden_behind_a_partly_clipped_facade_is_not_placed() {
         }
     }
     let sdr = SdrImage::from_vec(w, h, codes).unwrap();
-    let est = HdrImage::from_fn(w, h, |x, y| {
-        if (38..=42).contains(&x) && (18..=22).contains(&y) {
-            [50.0; 3]
-        } else {
-            [0.2; 3]
-        }
-    });
+    let est = lamp_estimate(w, h);
     let p = FusionParams {
         margin_px: 0,
         ..Default::default()
