@@ -2,6 +2,7 @@
 //! lights placed in 3-D that fall in it, else from the estimate's light
 //! attributed to it ([`super::regions`]).
 
+use super::ledger::Hidden;
 use super::regions::{Disc, Kind, Pixels, Region};
 use super::{Fallback, FrameLight, FusionParams, LightReport};
 use crate::sphere::dir_to_uv;
@@ -15,6 +16,7 @@ pub(super) fn assign_placed<'v>(
     placed: &'v [FrameLight<'v>],
     p: &FusionParams,
     fallbacks: &mut Vec<Fallback>,
+    hidden: &mut Vec<Hidden>,
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.min(p.max_move_deg).to_radians().cos();
@@ -80,6 +82,12 @@ pub(super) fn assign_placed<'v>(
                     power: pw,
                     gap_deg,
                 });
+                if let Some(dist) = light.distance.filter(|d| d.is_finite() && *d > 0.0) {
+                    hidden.push(Hidden {
+                        at: d.normalize_or_zero() * dist,
+                        radius: radius.to_radians() * dist,
+                    });
+                }
                 target = None;
             }
         }

@@ -55,6 +55,8 @@ pub struct ProbeEvidence {
     pub peak: [f32; 3],
     /// Width and height of the probe panorama.
     pub size: (usize, usize),
+    /// Where the probe was taken (world).
+    pub position: Vec3,
 }
 
 impl ProbeEvidence {
@@ -92,6 +94,7 @@ impl ProbeEvidence {
             cells,
             peak,
             size: (w, h),
+            position: pose.position,
         }
     }
 }
@@ -106,6 +109,8 @@ pub struct SeenLight {
     pub power: f64,
     /// Which of the frame's probes saw it.
     pub probe: usize,
+    /// Where that probe was, relative to the frame, in the frame's axes.
+    pub at: Vec3,
 }
 
 /// What the frame's probes measured, in the frame's axes and at its pixel size:
@@ -142,6 +147,7 @@ impl Evidence {
                         dir: d,
                         power,
                         probe: k,
+                        at: to_frame * (pe.position - frame.position),
                     });
                 }
             }
@@ -244,12 +250,36 @@ pub(super) struct Booked {
     pub far_covered: [f64; 2],
 }
 
+/// A placed light hidden from the frame ([`super::Fallback::Hidden`]): where
+/// it is, relative to the frame in the frame's axes, and its radius.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Hidden {
+    pub at: Vec3,
+    pub radius: f32,
+}
+
+impl Hidden {
+    /// Whether probe cell `s` lies on this light as its probe saw it: its
+    /// direction within the light's angular radius from that probe, plus a
+    /// cell's size.
+    fn holds(&self, s: &SeenLight) -> bool {
+        let v = self.at - s.at;
+        let d = v.length();
+        if !(d > 0.0 && d.is_finite()) {
+            return false;
+        }
+        let reach = (self.radius / d).atan() + CELL_DEG.to_radians();
+        s.dir.dot(v / d).clamp(-1.0, 1.0).acos() <= reach
+    }
+}
+
 /// Each region's budget and the source it is booked to.
 pub(super) fn budgets(
     regions: &[Region],
     ev: &Evidence,
     max_angle_deg: f32,
     partial: bool,
+    hidden: &[Hidden],
 ) -> Vec<(Source, f64, f64)> {
     let part = |v: [f64; 2]| v[0] + if partial { v[1] } else { 0.0 };
     // Each probe's bright regions go to the clipped region nearest in direction.
@@ -257,6 +287,11 @@ pub(super) fn budgets(
     let probes = ev.seen.iter().map(|s| s.probe + 1).max().unwrap_or(0);
     let mut per = vec![vec![0.0f64; probes]; regions.len()];
     for s in &ev.seen {
+        // A cell of a light the frame measured where it would be is no
+        // region's evidence.
+        if hidden.iter().any(|l| l.holds(s)) {
+            continue;
+        }
         let mut best = (None, cos_max);
         for (o, r) in regions.iter().enumerate() {
             let c = s.dir.dot(r.dir.normalize_or_zero());
@@ -360,11 +395,12 @@ pub(super) fn apply(
     ev: &Evidence,
     max_angle_deg: f32,
     enforce: Option<Budgeted>,
+    hidden: &[Hidden],
     out: &mut HdrImage,
 ) -> Vec<LedgerEntry> {
     let n = regions.len();
     let partial = enforce != Some(Budgeted::Full);
-    let budget = budgets(regions, ev, max_angle_deg, partial);
+    let budget = budgets(regions, ev, max_angle_deg, partial, hidden);
     let mut min_sa = vec![f64::INFINITY; n];
     for i in 0..px.w * px.h {
         if let Some(o) = px.region(i) {

@@ -69,6 +69,7 @@ fn a_partly_clipped_pixel_is_never_brighter_than_the_probes_measured() {
             dir: pixel_to_dir(30, 12, w, h),
             power: 0.05,
             probe: 0,
+            at: glam::Vec3::ZERO,
         }],
         walk: Vec::new(),
     };
@@ -109,6 +110,7 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
             dir: pixel_to_dir(43, 20, w, h),
             power: 2.0,
             probe: 0,
+            at: glam::Vec3::ZERO,
         }],
         walk: Vec::new(),
     };
@@ -178,6 +180,7 @@ fn build(c: &Case) -> (SdrImage, HdrImage, HdrImage, Evidence) {
                 dir: pixel_to_dir(x, y, W, H),
                 power,
                 probe: k % 2,
+                at: glam::Vec3::ZERO,
             })
             .collect(),
         walk: Vec::new(),
@@ -353,6 +356,7 @@ fn sun_frame(
         cells: vec![(pixel_to_dir(sx, sy, w, h), power)],
         peak: [(power / probe_sa) as f32 + 1.0; 3],
         size: probe,
+        position: glam::Vec3::ZERO,
     };
     let pose = crate::scene::Pose {
         position: glam::Vec3::ZERO,
@@ -458,11 +462,13 @@ fn a_source_one_probe_sees_where_the_frame_measured_a_wall_adds_nothing_there() 
                 dir: pixel_to_dir(90, 14, w, h),
                 power: 5e4 * sa[14] as f64,
                 probe: 0,
+                at: glam::Vec3::ZERO,
             },
             SeenLight {
                 dir: pixel_to_dir(20, 20, w, h),
                 power: 29.0 * 9.0 * sa[20] as f64,
                 probe: 1,
+                at: glam::Vec3::ZERO,
             },
         ],
         walk: Vec::new(),
@@ -571,6 +577,7 @@ fn one_wrong_frame_in_a_walk_is_mended_by_its_neighbours_and_a_lamp_coming_into_
             dir: pixel_to_dir(20, 12, w, h),
             power: 10.0,
             probe: 0,
+            at: glam::Vec3::ZERO,
         }],
         walk: Vec::new(),
     };

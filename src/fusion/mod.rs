@@ -482,7 +482,8 @@ pub fn fuse_with_lights(
     let frame = Measured { white, ..*frame };
     let (mut px, mut regions) = regions::find(&frame, estimate, p);
     let mut fallbacks = Vec::new();
-    let lights = budget::assign_placed(&px, &mut regions, placed, p, &mut fallbacks);
+    let mut hidden = Vec::new();
+    let lights = budget::assign_placed(&px, &mut regions, placed, p, &mut fallbacks, &mut hidden);
     budget::target_power(&mut regions, &mut fallbacks);
     let mut out = frame.radiance.clone();
     fill::fill(&frame, estimate, &mut px, &mut regions, sky, p, &mut out);
@@ -494,6 +495,7 @@ pub fn fuse_with_lights(
             ev,
             p.max_angle_deg,
             p.ledger,
+            &hidden,
             &mut out,
         );
         ledger::hold_walk(frame.radiance, &px, &ev.walk, &mut l, &mut out);

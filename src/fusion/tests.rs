@@ -1553,3 +1553,56 @@ fn a_lamp_hidden_behind_a_partly_clipped_facade_is_not_placed() {
         2.0 * lamp
     );
 }
+
+#[test]
+fn a_hidden_lamps_probe_light_is_no_regions_evidence() {
+    // The facade of the test above, with the probes' evidence: one cell of 50
+    // units where a probe (at the frame) sees the lamp, 3 units away at
+    // column 58. The lamp is hidden from the frame, so that cell is booked to
+    // no region; with no light placed there (nothing hidden) it is the
+    // facade region's evidence.
+    let (w, h) = (128, 64);
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    for y in 19..=21 {
+        for x in 43..=62 {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 180, 180]);
+            lin.set(x, y, [1.0, 0.5, 0.5]);
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = lamp_estimate(w, h);
+    let ev = Evidence {
+        peak: [5000.0; 3],
+        seen: vec![super::ledger::SeenLight {
+            dir: crate::sphere::pixel_to_dir(58, 20, w, h),
+            power: 50.0,
+            probe: 0,
+            at: glam::Vec3::ZERO,
+        }],
+        walk: Vec::new(),
+    };
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let most = |lights: &[FrameLight]| {
+        let (_, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            lights,
+            None,
+            Some(&ev),
+            &p,
+        )
+        .unwrap();
+        rep.ledger.iter().map(|e| e.most).fold(0.0f64, f64::max)
+    };
+    let lamp = compact_light(w, h, (58, 20), 20.0, 5000.0);
+    assert!(most(&[]) >= 50.0, "{}", most(&[]));
+    assert!(
+        most(&[lamp]) < 25.0,
+        "{}",
+        most(&[compact_light(w, h, (58, 20), 20.0, 5000.0)])
+    );
+}
