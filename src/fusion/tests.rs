@@ -197,17 +197,35 @@ fn an_aligned_lamp_brighter_on_one_side_is_not_moved() {
     }
 }
 
+/// Sets the pixels of columns and rows `(xs, ys)` to `code` and radiance `v`.
+fn paint(
+    codes: &mut [u8],
+    lin: &mut HdrImage,
+    (xs, ys): (std::ops::Range<usize>, std::ops::Range<usize>),
+    code: [u8; 3],
+    v: [f32; 3],
+) {
+    let w = lin.width();
+    for y in ys {
+        for x in xs.clone() {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&code);
+            lin.set(x, y, v);
+        }
+    }
+}
+
 /// A sunlit orange wall over x 20..40, y 10..20: red clipped, green and blue
 /// measured (0.7, 0.1), on a grey 0.2 background.
 fn orange_wall(w: usize, h: usize) -> (SdrImage, HdrImage) {
     let mut codes = vec![100u8; w * h * 3];
     let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
-    for y in 10..20 {
-        for x in 20..40 {
-            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 200, 60]);
-            lin.set(x, y, [1.0, 0.7, 0.1]);
-        }
-    }
+    paint(
+        &mut codes,
+        &mut lin,
+        (20..40, 10..20),
+        [255, 200, 60],
+        [1.0, 0.7, 0.1],
+    );
     (SdrImage::from_vec(w, h, codes).unwrap(), lin)
 }
 
@@ -1478,6 +1496,22 @@ fn a_light_placed_between_two_clipped_regions_goes_only_where_the_evidence_has_i
     assert!(total < 1.1 * (left_power + filled(right)), "{total}");
 }
 
+/// The frame of `frame_with_lamp(w, h, (40, 20), 2)` with a facade clipped
+/// only in red (codes 255, 180, 180) from column 43 to 62, rows 19-21: one
+/// region with the lamp.
+fn lamp_and_facade(w: usize, h: usize) -> (SdrImage, HdrImage) {
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    paint(
+        &mut codes,
+        &mut lin,
+        (43..63, 19..22),
+        [255, 180, 180],
+        [1.0, 0.5, 0.5],
+    );
+    (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+}
+
 #[test]
 fn a_lamp_hidden_behind_a_partly_clipped_facade_is_not_placed() {
     // A clipped lamp (every channel) at column 40, and a facade clipped only
@@ -1486,15 +1520,7 @@ fn a_lamp_hidden_behind_a_partly_clipped_facade_is_not_placed() {
     // fully clipped pixel: the frame measured green and blue there, far below
     // a lamp, so the lamp is hidden from the frame (behind the facade).
     let (w, h) = (128, 64);
-    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let mut codes = sdr.data().to_vec();
-    for y in 19..=21 {
-        for x in 43..=62 {
-            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 180, 180]);
-            lin.set(x, y, [1.0, 0.5, 0.5]);
-        }
-    }
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = lamp_and_facade(w, h);
     let est = lamp_estimate(w, h);
     let p = FusionParams {
         margin_px: 0,
@@ -1562,15 +1588,7 @@ fn a_hidden_lamps_probe_light_is_no_regions_evidence() {
     // no region; with no light placed there (nothing hidden) it is the
     // facade region's evidence.
     let (w, h) = (128, 64);
-    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let mut codes = sdr.data().to_vec();
-    for y in 19..=21 {
-        for x in 43..=62 {
-            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[255, 180, 180]);
-            lin.set(x, y, [1.0, 0.5, 0.5]);
-        }
-    }
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = lamp_and_facade(w, h);
     let est = lamp_estimate(w, h);
     let ev = Evidence {
         peak: [5000.0; 3],
