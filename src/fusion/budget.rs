@@ -20,13 +20,23 @@ pub(super) fn assign_placed<'v>(
 ) -> Vec<LightReport> {
     let (w, h) = (px.w, px.h);
     let cos_max = p.max_angle_deg.min(p.max_move_deg).to_radians().cos();
-    let full = full_pixels(px, regions.len());
+    let full = if placed.is_empty() {
+        Vec::new()
+    } else {
+        full_pixels(px, regions.len())
+    };
     let mut report = Vec::with_capacity(placed.len());
     for light in placed {
         let (d, pw) = (light.dir, light.power);
         if !(pw.is_finite() && pw > 0.0) || !d.is_finite() {
             continue;
         }
+        // The solid angle its power fills at the radiance the probes saw.
+        let solid = if light.radiance.is_finite() && light.radiance > 0.0 {
+            pw / light.radiance
+        } else {
+            0.0
+        };
         let (u, v) = dir_to_uv(d);
         let (x, y) = (
             ((u * w as f32) as usize).min(w - 1),
@@ -67,11 +77,6 @@ pub(super) fn assign_placed<'v>(
             None => 0.0,
         };
         if let Some(o) = target {
-            let solid = if light.radiance.is_finite() && light.radiance > 0.0 {
-                pw / light.radiance
-            } else {
-                0.0
-            };
             let radius = (crate::sphere::disc_radius(solid) as f32).to_degrees();
             let inside = px.region(y * w + x).is_some();
             let holds = !full[o].is_empty();
@@ -126,14 +131,8 @@ pub(super) fn assign_placed<'v>(
                 a.view = Some((pw, v));
             }
         }
-        // Its angular radius from the solid angle its power fills at the
-        // radiance the probes saw, at least a pixel across.
+        // Its angular radius from that solid angle, at least a pixel across.
         let px_angle = std::f32::consts::TAU / w as f32;
-        let solid = if light.radiance.is_finite() && light.radiance > 0.0 {
-            pw / light.radiance
-        } else {
-            0.0
-        };
         let radius = (crate::sphere::disc_radius(solid) as f32).clamp(px_angle, 0.5);
         // Only a light compact against its region is shaped as a disc: a broad
         // source (a window, a panel that fills the region) keeps the estimate's

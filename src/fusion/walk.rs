@@ -376,7 +376,8 @@ mod tests {
                 })
                 .collect()
         };
-        let m = mends(&walk(3.0), &at(&walk(3.0)), &two_sided());
+        let w3 = walk(3.0);
+        let m = mends(&w3, &at(&w3), &two_sided());
         assert_eq!(
             m[2],
             vec![Mend {
@@ -384,7 +385,8 @@ mod tests {
                 power: 3.0
             }]
         );
-        let m = mends(&walk(5.0), &at(&walk(5.0)), &two_sided());
+        let w5 = walk(5.0);
+        let m = mends(&w5, &at(&w5), &two_sided());
         assert!(m.iter().all(|m| m.is_empty()), "{m:?}");
     }
 
