@@ -268,8 +268,15 @@ fn promote(
     px: &mut Pixels,
     regions: &mut [Region],
     out: &HdrImage,
-) {
+    look: &Lookups,
+    p: &FusionParams,
+) -> Vec<bool> {
     let white = frame.white;
+    let under = if p.censored_lights {
+        promote_under_discs(frame, px, regions, out, look)
+    } else {
+        Vec::new()
+    };
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
         match px.kinds[i] {
@@ -300,6 +307,56 @@ fn promote(
             regions[o].fill.full_area += px.solid_angle(i);
         }
     }
+    under
+}
+
+/// Partly clipped pixels that measured nothing (every channel bleeds) under a
+/// region's compact placed light become fully clipped, so the light's power can
+/// land on them ([`FusionParams::censored_lights`]); a pixel a light's surface
+/// is carried into above the white point shows that surface, not the light.
+/// Returns the pixels under a light (empty when the setting is off).
+fn promote_under_discs(
+    frame: &Measured,
+    px: &mut Pixels,
+    regions: &mut [Region],
+    out: &HdrImage,
+    look: &Lookups,
+) -> Vec<bool> {
+    let white = frame.white;
+    let codes = frame.codes.data();
+    let mut under = vec![false; px.w * px.h];
+    for i in 0..px.w * px.h {
+        let Some(o) = px.region(i) else { continue };
+        let r = &regions[o];
+        if !matches!(px.kinds[i], Kind::Partial | Kind::Full) || r.placed.discs.is_empty() {
+            continue;
+        }
+        if !(0..3).all(|k| frame.censor.bleeds(codes[3 * i + k])) {
+            continue;
+        }
+        if matches!(look.light(regions, o, i), Some(c) if luminance(c) > white) {
+            continue;
+        }
+        let d = px.dir(i);
+        let pixel = (px.solid_angle(i) as f32).sqrt();
+        let on = r
+            .placed
+            .discs
+            .iter()
+            .any(|c| c.dir.dot(d).clamp(-1.0, 1.0).acos() <= c.radius + pixel);
+        if !on {
+            continue;
+        }
+        under[i] = true;
+        regions[o].fill.under_light += px.solid_angle(i);
+        if px.kinds[i] == Kind::Partial {
+            px.kinds[i] = Kind::Full;
+            let v = out.get(i % px.w, i / px.w);
+            regions[o].fill.partial -=
+                (luminance(v) as f64 - white as f64).max(0.0) * px.solid_angle(i);
+        }
+    }
+    under
 }
 
 /// A promoted pixel's channels that are measurements (below the bleed code) stay
@@ -327,6 +384,7 @@ fn fill_full(
     px: &Pixels,
     regions: &mut [Region],
     look: &Lookups,
+    under: &[bool],
     out: &mut HdrImage,
 ) {
     let white = frame.white;
@@ -402,6 +460,14 @@ fn fill_full(
         } else {
             1.0
         };
+        // Where the region's shape is not its discs' (a surface carried, a broad
+        // source), the compact lights' power goes to the pixels under them.
+        f.lamp_rest = if f.under_light > 0.0 && (r.placed.view.is_some() || r.placed.broad) {
+            let discs: f64 = r.placed.discs.iter().map(|c| c.power as f64).sum();
+            discs.min(f.rest)
+        } else {
+            0.0
+        };
     }
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
@@ -432,13 +498,20 @@ fn fill_full(
         let le = luminance(e).max(0.0);
         let excess = (le - white).max(0.0) as f64;
         let f = &reg.fill;
-        let add = if f.inside > 0.0 {
-            excess * f.rest / f.inside
-        } else if f.full_area > 0.0 {
-            f.rest / f.full_area
+        let rest = f.rest - f.lamp_rest;
+        let lamp = if f.lamp_rest > 0.0 && under[i] {
+            f.lamp_rest / f.under_light
         } else {
             0.0
         };
+        let add = lamp
+            + if f.inside > 0.0 {
+                excess * rest / f.inside
+            } else if f.full_area > 0.0 {
+                rest / f.full_area
+            } else {
+                0.0
+            };
         let target = white as f64 + f.missed_cap.map_or(add, |c| add.min(c));
         // Colour from the estimate where it has one, else from the SDR pixel.
         let colour = if le > 1e-12 { e } else { s };
@@ -528,8 +601,8 @@ pub(super) fn fill(
     book(px, regions, &look, frame.white);
     colour_ratios(frame, estimate, px, regions);
     fill_partial(frame, estimate, px, regions, &look, out);
-    promote(frame, estimate, px, regions, out);
-    fill_full(frame, estimate, px, regions, &look, out);
+    let under = promote(frame, estimate, px, regions, out, &look, p);
+    fill_full(frame, estimate, px, regions, &look, &under, out);
     held(px, regions, frame.white, out);
 }
 

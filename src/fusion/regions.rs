@@ -163,6 +163,12 @@ pub(super) struct Fill {
     pub rest: f64,
     /// Solid angle of its fully clipped pixels not carried.
     pub missed_area: f64,
+    /// Solid angle of its pixels under a compact placed light that measured
+    /// nothing ([`super::FusionParams::censored_lights`]).
+    pub under_light: f64,
+    /// The compact lights' power those pixels take where the region's shape
+    /// is not the lights' discs.
+    pub lamp_rest: f64,
     /// Factor on the carried pixels' excess over white: above 1 when every fully
     /// clipped pixel was carried and power is left, so the power is kept.
     pub carried_gain: f64,

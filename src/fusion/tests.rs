@@ -1624,3 +1624,72 @@ fn a_hidden_lamps_probe_light_is_no_regions_evidence() {
         most(&[compact_light(w, h, (58, 20), 20.0, 5000.0)])
     );
 }
+
+#[test]
+fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
+    // The clipped lamp at column 40 (every channel), a facade clipped in red
+    // (43..46) and, at its end, a second lamp of 2x2 pixels whose red channel
+    // JPEG's chroma subsampling left at 247 (46..48): one region. The probes
+    // place a lamp on the second one. With `censored_lights` its power lands
+    // on those pixels (nothing was measured there); without, on the fully
+    // clipped lamp 17 degrees away.
+    let (w, h) = (128, 64);
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    paint(
+        &mut codes,
+        &mut lin,
+        (43..46, 19..22),
+        [255, 180, 180],
+        [1.0, 0.5, 0.5],
+    );
+    paint(
+        &mut codes,
+        &mut lin,
+        (46..48, 20..22),
+        [247, 255, 255],
+        [0.95, 1.0, 1.0],
+    );
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = lamp_estimate(w, h);
+    let lamp = 0.05;
+    let light = compact_light(w, h, (46, 20), lamp, 5000.0);
+    let sa = row_solid_angles(w, h);
+    let run = |censored_lights: bool| {
+        let p = FusionParams {
+            margin_px: 0,
+            censored_lights,
+            ..Default::default()
+        };
+        let (out, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[light],
+            None,
+            None,
+            &p,
+        )
+        .unwrap();
+        assert_eq!(rep.lights[0].region, Some(0));
+        let on_second: f64 = (20..22)
+            .flat_map(|y| (46..48).map(move |x| (x, y)))
+            .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
+            .sum();
+        (on_second, power_above(&out, 1.0))
+    };
+    let (on, total) = run(true);
+    assert!(
+        (total - lamp).abs() < 0.05 * lamp,
+        "{total} added for {lamp}"
+    );
+    assert!(on > 0.8 * lamp, "{on} of {lamp} on the lamp's pixels");
+    let (on, total) = run(false);
+    assert!(
+        (total - lamp).abs() < 0.05 * lamp,
+        "{total} added for {lamp}"
+    );
+    assert!(
+        on < 0.2 * lamp,
+        "{on} of {lamp} on the lamp's pixels without the setting"
+    );
+}
