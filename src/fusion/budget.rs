@@ -129,6 +129,7 @@ pub(super) fn assign_placed<'v>(
         if let Some(v) = &light.view {
             if a.view.map_or(true, |(p0, _)| pw > p0) {
                 a.view = Some((pw, v));
+                a.view_moved = moved_deg > 0.0;
             }
         }
         // Its angular radius from that solid angle, at least a pixel across.

@@ -385,6 +385,7 @@ fn fill_full(
     regions: &mut [Region],
     look: &Lookups,
     under: &[bool],
+    p: &FusionParams,
     out: &mut HdrImage,
 ) {
     let white = frame.white;
@@ -533,6 +534,60 @@ fn fill_full(
         }
         keep_measured(frame, &mut v, i);
         out.set(x, y, v);
+        regions[o].fill.missed_placed +=
+            (luminance(v) as f64 - white as f64).max(0.0) * px.solid_angle(i);
+    }
+    if p.fill_to_peak {
+        top_up_carried(frame, px, regions, &full_radiance, out);
+    }
+}
+
+/// A region whose missed pixels could not take its rest (each at most the
+/// light's peak) raises its carried pixels toward that peak, evenly in the
+/// room each has, until the rest is placed or every pixel is at the peak
+/// ([`FusionParams::fill_to_peak`]). Only where the light's own direction
+/// fell in the region: a light moved into it is less sure of its power than
+/// the surface lookup.
+fn top_up_carried(
+    frame: &Measured,
+    px: &Pixels,
+    regions: &mut [Region],
+    full_radiance: &HashMap<usize, [f32; 3]>,
+    out: &mut HdrImage,
+) {
+    let white = frame.white as f64;
+    let excess =
+        |r: &Region, c: [f32; 3]| (luminance(c) as f64 - white).max(0.0) * r.fill.carried_gain;
+    let mut room = vec![0.0f64; regions.len()];
+    for (&i, &c) in full_radiance {
+        let o = px.lab[i] as usize;
+        if let Some(cap) = regions[o].fill.missed_cap {
+            room[o] += (cap - excess(&regions[o], c)).max(0.0) * px.solid_angle(i);
+        }
+    }
+    for (&i, &c) in full_radiance {
+        let o = px.lab[i] as usize;
+        let r = &regions[o];
+        let (Some(cap), true, false) = (r.fill.missed_cap, room[o] > 0.0, r.placed.view_moved)
+        else {
+            continue;
+        };
+        let short = r.fill.rest - r.fill.missed_placed;
+        if short <= 0.0 {
+            continue;
+        }
+        let g = (short / room[o]).min(1.0);
+        let e = excess(r, c);
+        let lc = (luminance(c) as f64).max(1e-12);
+        let target = white + e + g * (cap - e).max(0.0);
+        let (x, y) = (i % px.w, i / px.w);
+        let s = frame.radiance.get(x, y);
+        let mut v = [0.0f32; 3];
+        for k in 0..3 {
+            v[k] = ((c[k] as f64 * target / lc) as f32).max(s[k]);
+        }
+        keep_measured(frame, &mut v, i);
+        out.set(x, y, v);
     }
 }
 
@@ -602,7 +657,7 @@ pub(super) fn fill(
     colour_ratios(frame, estimate, px, regions);
     fill_partial(frame, estimate, px, regions, &look, out);
     let under = promote(frame, estimate, px, regions, out, &look, p);
-    fill_full(frame, estimate, px, regions, &look, &under, out);
+    fill_full(frame, estimate, px, regions, &look, &under, p, out);
     held(px, regions, frame.white, out);
 }
 

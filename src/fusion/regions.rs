@@ -81,6 +81,8 @@ pub(super) struct Placed<'v> {
     /// The strongest of them that can be carried pixel by pixel through its
     /// surface, with its power.
     pub view: Option<(f64, &'v LightView<'v>)>,
+    /// That light fell outside the region and was moved into it.
+    pub view_moved: bool,
     /// Each of them as a disc in the frame: where its power lands when it has no
     /// surface to be carried through.
     pub discs: Vec<Disc>,
@@ -161,6 +163,8 @@ pub(super) struct Fill {
     pub missed_cap: Option<f64>,
     /// Power left for the pixels not carried.
     pub rest: f64,
+    /// Power above white its missed pixels hold after the fill.
+    pub missed_placed: f64,
     /// Solid angle of its fully clipped pixels not carried.
     pub missed_area: f64,
     /// Solid angle of its pixels under a compact placed light that measured

@@ -1693,3 +1693,88 @@ fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
         "{on} of {lamp} on the lamp's pixels without the setting"
     );
 }
+
+#[test]
+fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
+    // A 5x5 clipped patch of the ceiling (white point 1). The probes see the
+    // ceiling at radiance 5 everywhere, so the light's surface carries 5 into
+    // every pixel of the patch; the light's power at the frame (20 over the
+    // patch's solid angle) and its peak (50) say it is brighter. With
+    // `fill_to_peak` the carried pixels rise toward the peak until the power
+    // is placed; without, the surface lookup's 4 above white is all they hold.
+    use lights::tests::upright;
+    use lights::{LightView, Surface};
+    let (w, h) = (128, 64);
+    let frame = upright(glam::Vec3::new(0.0, 0.0, 1.5));
+    let probes = [
+        upright(glam::Vec3::new(1.0, 0.0, 1.5)),
+        upright(glam::Vec3::new(-1.0, 0.0, 1.5)),
+    ];
+    let seen = HdrImage::from_fn(w, h, |_, _| [5.0; 3]);
+    // The pixel looking 45 degrees up.
+    let up = (0..w * h)
+        .max_by(|&i, &j| {
+            let z = |i: usize| {
+                (frame.world_from_camera * crate::sphere::pixel_to_dir(i % w, i / w, w, h)).z
+            };
+            let target = std::f32::consts::FRAC_1_SQRT_2;
+            (z(j) - target).abs().total_cmp(&(z(i) - target).abs())
+        })
+        .unwrap();
+    let (cx, cy) = (up % w, up / w);
+    let (sdr, lin) = frame_with_lamp(w, h, (cx, cy), 2);
+    let sa = row_solid_angles(w, h);
+    let area: f64 = (cy - 2..=cy + 2).map(|y| 5.0 * sa[y] as f64).sum();
+    let view = LightView {
+        surface: Surface::Plane {
+            point: glam::Vec3::new(0.0, 0.0, 2.6),
+            normal: glam::Vec3::Z,
+        },
+        probes: [(&seen, &probes[0]), (&seen, &probes[1])],
+        frame,
+    };
+    let light = FrameLight {
+        dir: crate::sphere::pixel_to_dir(cx, cy, w, h),
+        power: 20.0 * area,
+        radiance: 50.0,
+        peak: 50.0,
+        view: Some(view),
+        seen: [20.0 * area; 2],
+        distance: Some(1.5),
+    };
+    let est = HdrImage::from_fn(w, h, |_, _| [0.2; 3]);
+    let added = |fill_to_peak: bool| {
+        let p = FusionParams {
+            margin_px: 0,
+            fill_to_peak,
+            ..Default::default()
+        };
+        let (out, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[light],
+            None,
+            None,
+            &p,
+        )
+        .unwrap();
+        assert_eq!(rep.lights[0].region, Some(0));
+        let peak = (0..w * h)
+            .map(|i| luminance(out.get(i % w, i / w)))
+            .fold(0.0f32, f32::max);
+        (power_above(&out, 1.0), peak)
+    };
+    let (on, peak) = added(true);
+    assert!(
+        (on - 20.0 * area).abs() < 0.02 * 20.0 * area,
+        "{on} vs {}",
+        20.0 * area
+    );
+    assert!(peak <= 50.0 * 1.001, "{peak} above the light's peak");
+    let (off, _) = added(false);
+    assert!(
+        (off - 4.0 * area).abs() < 0.05 * 4.0 * area,
+        "{off} vs {}",
+        4.0 * area
+    );
+}
