@@ -5,7 +5,8 @@
 //! the fully clipped pixels the carried light missed, shaped by the estimate.
 
 use super::edges::carry_with_sharp_edges;
-use super::lights::SkyView;
+use super::ledger::Hidden;
+use super::lights::{NearLight, SkyView};
 use super::regions::{Far, Kind, Pixels, Region};
 use super::{FusionParams, Measured};
 use crate::image::{luminance, HdrImage};
@@ -41,18 +42,31 @@ fn far_sources(
     px: &Pixels,
     regions: &mut [Region],
     sky: Option<&SkyView>,
+    hidden: &[Hidden],
     p: &FusionParams,
 ) -> HashMap<usize, [f32; 3]> {
     let mut sky_rad = HashMap::new();
     let Some(sky) = sky else {
         return sky_rad;
     };
+    // Lights hidden from the frame, as balls in the world.
+    let hidden: Vec<NearLight> = if p.hidden_not_far {
+        hidden
+            .iter()
+            .map(|h| NearLight {
+                position: sky.frame.position + sky.frame.world_from_camera * h.at,
+                radius: h.radius,
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
         if regions[o].placed.view.is_some() || px.kinds[i] == Kind::Margin {
             continue;
         }
-        let r = sky.radiance(px.dir(i));
+        let r = sky.radiance_past(px.dir(i), &hidden);
         if let Some(r) = r {
             sky_rad.insert(i, r);
         }
@@ -645,10 +659,11 @@ pub(super) fn fill(
     px: &mut Pixels,
     regions: &mut [Region],
     sky: Option<&SkyView>,
+    hidden: &[Hidden],
     p: &FusionParams,
     out: &mut HdrImage,
 ) {
-    let sky_rad = far_sources(px, regions, sky, p);
+    let sky_rad = far_sources(px, regions, sky, hidden, p);
     let look = Lookups {
         sky: sky_rad,
         carried: carry_with_sharp_edges(px, regions, frame.white),

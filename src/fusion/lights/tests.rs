@@ -462,6 +462,45 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
     assert!(sky(vec![window]).radiance(d).is_some());
 }
 
+#[test]
+fn a_lamp_hidden_from_the_frame_is_no_far_source_there_though_its_ray_meets_it() {
+    // The lamp of the test above, and a frame on the probe's line of sight to
+    // it: the frame's ray in that direction meets the lamp's ball, so the
+    // placed lamp alone does not stop the probe's sample from counting as a
+    // far source there. The fusion found the lamp hidden from this frame (a
+    // facade in between, which the probe does not see): the sample is refused.
+    let lamp = Vec3::new(2.0, 0.0, 2.5);
+    let (w, h) = (256, 128);
+    let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+    let dw = (lamp - probe.position).normalize();
+    let img = HdrImage::from_fn(w, h, |x, y| {
+        let d = probe.world_from_camera * pixel_to_dir(x, y, w, h);
+        if d.angle_between(dw) < 0.04 {
+            [1000.0; 3]
+        } else {
+            [0.5; 3]
+        }
+    });
+    let frame = upright(probe.position + 0.5 * (lamp - probe.position));
+    let d = frame.world_from_camera.transpose() * dw;
+    let ball = NearLight {
+        position: lamp,
+        radius: 0.1,
+    };
+    let sky = SkyView {
+        probes: vec![(&img, &probe)],
+        frame,
+        floor: 1.0,
+        near: vec![ball],
+        witnesses: &[],
+    };
+    assert!(sky.radiance(d).is_some_and(|c| c[1] > 500.0));
+    assert_eq!(sky.radiance_past(d, &[ball]), None);
+    // Another direction is untouched.
+    let aside = frame.world_from_camera.transpose() * Vec3::new(-1.0, 0.2, 0.1).normalize();
+    assert_eq!(sky.radiance_past(aside, &[ball]), sky.radiance(aside));
+}
+
 /// The neighbouring frames witness the far sources: a lamp one probe sees past
 /// a corner, taken for a far source, is refused where every neighbour measured
 /// its direction unclipped, and kept while one neighbour saw it clipped; a sun

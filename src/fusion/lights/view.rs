@@ -235,6 +235,13 @@ impl SkyView<'_> {
     /// something brighter than `floor` there, nearer probes weighing more; `None`
     /// when none does.
     pub fn radiance(&self, d: Vec3) -> Option<[f32; 3]> {
+        self.radiance_past(d, &[])
+    }
+
+    /// [`SkyView::radiance`] without the probe samples whose ray meets one of
+    /// `hidden` (lights found hidden from the frame, world axes): what a probe
+    /// sees of a light the frame cannot see is no far source for the frame.
+    pub fn radiance_past(&self, d: Vec3, hidden: &[NearLight]) -> Option<[f32; 3]> {
         let dw = self.frame.world_from_camera * d;
         let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
         for (img, pose) in &self.probes {
@@ -248,6 +255,9 @@ impl SkyView<'_> {
                 .iter()
                 .any(|l| l.hit(pose.position, dw, slack) && !l.hit(self.frame.position, dw, slack))
             {
+                continue;
+            }
+            if hidden.iter().any(|l| l.hit(pose.position, dw, slack)) {
                 continue;
             }
             let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
