@@ -1625,6 +1625,20 @@ fn a_hidden_lamps_probe_light_is_no_regions_evidence() {
     );
 }
 
+/// The frame fused with one placed light, which must land in region 0.
+fn fuse_landed(
+    sdr: &SdrImage,
+    lin: &HdrImage,
+    est: &HdrImage,
+    light: FrameLight,
+    p: &FusionParams,
+) -> HdrImage {
+    let (out, rep) =
+        fuse_with_lights(&Measured::new(sdr, lin, 1.0), est, &[light], None, None, p).unwrap();
+    assert_eq!(rep.lights[0].region, Some(0), "{:?}", rep.fallbacks);
+    out
+}
+
 #[test]
 fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
     // The clipped lamp at column 40 (every channel), a facade clipped in red
@@ -1661,16 +1675,7 @@ fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
             censored_lights,
             ..Default::default()
         };
-        let (out, rep) = fuse_with_lights(
-            &Measured::new(&sdr, &lin, 1.0),
-            &est,
-            &[light],
-            None,
-            None,
-            &p,
-        )
-        .unwrap();
-        assert_eq!(rep.lights[0].region, Some(0));
+        let out = fuse_landed(&sdr, &lin, &est, light, &p);
         let on_second: f64 = (20..22)
             .flat_map(|y| (46..48).map(move |x| (x, y)))
             .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
@@ -1749,16 +1754,7 @@ fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
             fill_to_peak,
             ..Default::default()
         };
-        let (out, rep) = fuse_with_lights(
-            &Measured::new(&sdr, &lin, 1.0),
-            &est,
-            &[light],
-            None,
-            None,
-            &p,
-        )
-        .unwrap();
-        assert_eq!(rep.lights[0].region, Some(0));
+        let out = fuse_landed(&sdr, &lin, &est, light, &p);
         let peak = (0..w * h)
             .map(|i| luminance(out.get(i % w, i / w)))
             .fold(0.0f32, f32::max);
