@@ -390,8 +390,11 @@ fn keep_measured(frame: &Measured, v: &mut [f32; 3], i: usize) {
 /// probes' radiance of the same surface point (never below the white point the
 /// frame saw it clip at); the pixels it does not cover receive the rest of the
 /// region's power: the white point plus the shape's excess, rescaled to that
-/// power, spread evenly when the shape misses them, and bounded by `missed_cap`.
-/// A region with no fully clipped pixel keeps what its partial pixels carry.
+/// power, spread evenly when the shape misses them, and bounded by `missed_cap`;
+/// the compact lights' share (`lamp_rest`) goes evenly to the pixels under them
+/// first, and what the capped pixels could not take raises the carried ones
+/// ([`top_up_carried`]). A region with no fully clipped pixel keeps what its
+/// partial pixels carry.
 fn fill_full(
     frame: &Measured,
     estimate: &HdrImage,
@@ -556,10 +559,10 @@ fn fill_full(
     }
 }
 
-/// A region whose missed pixels could not take its rest (each at most the
-/// light's peak) raises its carried pixels toward that peak, evenly in the
-/// room each has, until the rest is placed or every pixel is at the peak
-/// ([`FusionParams::fill_to_peak`]). Only where the light's own direction
+/// A region whose missed pixels could not take its rest (each at most
+/// `missed_cap`, the region's placed lights' largest peak) raises its carried
+/// pixels toward that cap, evenly in the room each has, until the rest is
+/// placed or every pixel is at the cap ([`FusionParams::fill_to_peak`]). Only where the light's own direction
 /// fell in the region: a light moved into it is less sure of its power than
 /// the surface lookup.
 fn top_up_carried(

@@ -141,15 +141,22 @@ pub struct FusionParams {
     /// one it kept) takes those pixels as fully clipped: its power lands where
     /// it is, not only in the region's fully clipped pixels elsewhere, which
     /// another light may fill. "On" is within the disc's radius plus one pixel
-    /// (the bleed is pixel-sized). Chosen on the corpus's development split
+    /// (the bleed is pixel-sized). In a region shaped by its discs the power
+    /// follows them there; in one shaped by a carried surface or a broad
+    /// source, the discs' power (at most the region's rest) goes evenly to
+    /// the pixels under them. A region that had no fully clipped pixel and
+    /// gains some this way no longer spreads its light over its bright partly
+    /// clipped pixels. Chosen on the corpus's development split
     /// (irradiance error 0.1763 -> 0.1727; validation 0.0967 -> 0.0845;
     /// docs/fusion-ledger.md).
     #[serde(default = "default_true")]
     pub censored_lights: bool,
     /// A region holding a light carried through its surface whose other
     /// fully clipped pixels cannot take the rest of its power (each at most
-    /// the probes' peak of that light) raises its carried pixels toward that
-    /// peak to place it (where the light's own direction fell in the region).
+    /// `missed_cap`: the largest peak of the lights placed in the region, or
+    /// the largest carried radiance if higher) raises its carried pixels
+    /// toward that cap to place it (where the carried light's own direction
+    /// fell in the region).
     /// Chosen on the corpus's development split (irradiance error 0.1727 ->
     /// 0.1614; validation 0.0845 -> 0.0761; docs/fusion-ledger.md).
     #[serde(default = "default_true")]

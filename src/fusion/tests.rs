@@ -1774,3 +1774,72 @@ fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
         4.0 * area
     );
 }
+
+#[test]
+fn a_light_moved_into_its_region_does_not_raise_its_carried_pixels() {
+    // The frame and probes of the test above, with the light's direction two
+    // pixels beside the patch: it is moved into the region, and a moved
+    // light's power is less sure than the surface lookup, so the patch keeps
+    // the lookup's 4 above white.
+    use lights::tests::upright;
+    use lights::{LightView, Surface};
+    let (w, h) = (128, 64);
+    let frame = upright(glam::Vec3::new(0.0, 0.0, 1.5));
+    let probes = [
+        upright(glam::Vec3::new(1.0, 0.0, 1.5)),
+        upright(glam::Vec3::new(-1.0, 0.0, 1.5)),
+    ];
+    let seen = HdrImage::from_fn(w, h, |_, _| [5.0; 3]);
+    let (cx, cy) = (64, 20);
+    let (sdr, lin) = frame_with_lamp(w, h, (cx, cy), 2);
+    let sa = row_solid_angles(w, h);
+    let area: f64 = (cy - 2..=cy + 2).map(|y| 5.0 * sa[y] as f64).sum();
+    let view = LightView {
+        surface: Surface::Plane {
+            point: glam::Vec3::new(0.0, 0.0, 2.6),
+            normal: glam::Vec3::Z,
+        },
+        probes: [(&seen, &probes[0]), (&seen, &probes[1])],
+        frame,
+    };
+    let est = HdrImage::from_fn(w, h, |_, _| [0.2; 3]);
+    let p = FusionParams {
+        margin_px: 0,
+        ..Default::default()
+    };
+    let at = |x: usize| FrameLight {
+        dir: crate::sphere::pixel_to_dir(x, cy, w, h),
+        power: 20.0 * area,
+        radiance: 50.0,
+        peak: 50.0,
+        view: Some(view),
+        seen: [20.0 * area; 2],
+        distance: Some(1.5),
+    };
+    let added = |x: usize| {
+        let (out, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[at(x)],
+            None,
+            None,
+            &p,
+        )
+        .unwrap();
+        assert_eq!(rep.lights[0].region, Some(0), "{:?}", rep.fallbacks);
+        (power_above(&out, 1.0), rep.lights[0].moved_deg)
+    };
+    let (inside, moved) = added(cx);
+    assert_eq!(moved, 0.0);
+    assert!(
+        (inside - 20.0 * area).abs() < 0.02 * 20.0 * area,
+        "{inside}"
+    );
+    let (beside, moved) = added(cx + 4);
+    assert!(moved > 0.0);
+    assert!(
+        (beside - 4.0 * area).abs() < 0.05 * 4.0 * area,
+        "{beside} vs {}",
+        4.0 * area
+    );
+}
