@@ -1843,3 +1843,61 @@ fn a_light_moved_into_its_region_does_not_raise_its_carried_pixels() {
         4.0 * area
     );
 }
+
+#[test]
+fn the_far_lookup_skips_a_lamp_hidden_behind_the_facade() {
+    // The lamp-and-facade frame, and a probe at the frame that sees something
+    // bright (1,000) over the lamp and the whole facade. A lamp placed 3 m away
+    // at column 58 falls on the facade's measured pixels, 37 degrees from the
+    // fully clipped lamp: hidden from the frame. The far-source lookup then
+    // skips the probe's rays that meet it, so the facade pixels around its
+    // direction get nothing from the probe's view of it.
+    use lights::tests::upright;
+    use lights::SkyView;
+    let (w, h) = (128, 64);
+    let (sdr, lin) = lamp_and_facade(w, h);
+    let est = lamp_estimate(w, h);
+    let pose = upright(glam::Vec3::new(0.0, 0.0, 1.5));
+    let img = HdrImage::from_fn(w, h, |x, y| {
+        if (36..64).contains(&x) && (17..24).contains(&y) {
+            [1000.0; 3]
+        } else {
+            [0.5; 3]
+        }
+    });
+    let sky = SkyView {
+        probes: vec![(&img, &pose)],
+        frame: pose,
+        floor: 1.0,
+        near: Vec::new(),
+        witnesses: &[],
+    };
+    let lamp = compact_light(w, h, (58, 20), 0.05, 5000.0);
+    let sa = row_solid_angles(w, h);
+    let around = |hidden_not_far: bool| {
+        let p = FusionParams {
+            margin_px: 0,
+            hidden_not_far,
+            ..Default::default()
+        };
+        let (out, rep) = fuse_with_lights(
+            &Measured::new(&sdr, &lin, 1.0),
+            &est,
+            &[lamp],
+            Some(&sky),
+            None,
+            &p,
+        )
+        .unwrap();
+        assert_eq!(rep.lights[0].region, None, "{:?}", rep.fallbacks);
+        (19..=21)
+            .flat_map(|y| (57..=59).map(move |x| (x, y)))
+            .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
+            .sum::<f64>()
+    };
+    let (on, off) = (around(true), around(false));
+    assert!(
+        off > 100.0 * on.max(1e-6),
+        "{off} without the skip, {on} with it"
+    );
+}
