@@ -1699,54 +1699,88 @@ fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
     );
 }
 
+/// A 5x5 clipped patch of the ceiling (plane z = 2.6 m) at pixel `(cx, cy)`
+/// of an upright frame at 1.5 m, and two probes 1 m either side that see the
+/// ceiling at radiance 5 everywhere.
+struct CeilingPatch {
+    w: usize,
+    h: usize,
+    frame: crate::scene::Pose,
+    probes: [crate::scene::Pose; 2],
+    seen: HdrImage,
+    sdr: SdrImage,
+    lin: HdrImage,
+    /// The patch's solid angle.
+    area: f64,
+}
+
+impl CeilingPatch {
+    fn new(w: usize, h: usize, centre: impl Fn(&crate::scene::Pose) -> (usize, usize)) -> Self {
+        use lights::tests::upright;
+        let frame = upright(glam::Vec3::new(0.0, 0.0, 1.5));
+        let (cx, cy) = centre(&frame);
+        let (sdr, lin) = frame_with_lamp(w, h, (cx, cy), 2);
+        let sa = row_solid_angles(w, h);
+        CeilingPatch {
+            w,
+            h,
+            frame,
+            probes: [
+                upright(glam::Vec3::new(1.0, 0.0, 1.5)),
+                upright(glam::Vec3::new(-1.0, 0.0, 1.5)),
+            ],
+            seen: HdrImage::from_fn(w, h, |_, _| [5.0; 3]),
+            sdr,
+            lin,
+            area: (cy - 2..=cy + 2).map(|y| 5.0 * sa[y] as f64).sum(),
+        }
+    }
+
+    /// A light of 20 over the patch's solid angle with peak 50, carried through
+    /// the ceiling, placed at pixel `(x, y)`.
+    fn light(&self, (x, y): (usize, usize)) -> FrameLight<'_> {
+        use lights::{LightView, Surface};
+        let view = LightView {
+            surface: Surface::Plane {
+                point: glam::Vec3::new(0.0, 0.0, 2.6),
+                normal: glam::Vec3::Z,
+            },
+            probes: [(&self.seen, &self.probes[0]), (&self.seen, &self.probes[1])],
+            frame: self.frame,
+        };
+        FrameLight {
+            dir: crate::sphere::pixel_to_dir(x, y, self.w, self.h),
+            power: 20.0 * self.area,
+            radiance: 50.0,
+            peak: 50.0,
+            view: Some(view),
+            seen: [20.0 * self.area; 2],
+            distance: Some(1.5),
+        }
+    }
+}
+
 #[test]
 fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
-    // A 5x5 clipped patch of the ceiling (white point 1). The probes see the
-    // ceiling at radiance 5 everywhere, so the light's surface carries 5 into
-    // every pixel of the patch; the light's power at the frame (20 over the
-    // patch's solid angle) and its peak (50) say it is brighter. With
-    // `fill_to_peak` the carried pixels rise toward the peak until the power
-    // is placed; without, the surface lookup's 4 above white is all they hold.
-    use lights::tests::upright;
-    use lights::{LightView, Surface};
+    // The ceiling patch: the light's surface carries the probes' 5 into every
+    // pixel of the patch; the light's power at the frame (20 over the patch's
+    // solid angle) and its peak (50) say it is brighter. With `fill_to_peak`
+    // the carried pixels rise toward the peak until the power is placed;
+    // without, the surface lookup's 4 above white is all they hold.
     let (w, h) = (128, 64);
-    let frame = upright(glam::Vec3::new(0.0, 0.0, 1.5));
-    let probes = [
-        upright(glam::Vec3::new(1.0, 0.0, 1.5)),
-        upright(glam::Vec3::new(-1.0, 0.0, 1.5)),
-    ];
-    let seen = HdrImage::from_fn(w, h, |_, _| [5.0; 3]);
-    // The pixel looking 45 degrees up.
-    let up = (0..w * h)
-        .max_by(|&i, &j| {
-            let z = |i: usize| {
-                (frame.world_from_camera * crate::sphere::pixel_to_dir(i % w, i / w, w, h)).z
-            };
-            let target = std::f32::consts::FRAC_1_SQRT_2;
-            (z(j) - target).abs().total_cmp(&(z(i) - target).abs())
-        })
-        .unwrap();
-    let (cx, cy) = (up % w, up / w);
-    let (sdr, lin) = frame_with_lamp(w, h, (cx, cy), 2);
-    let sa = row_solid_angles(w, h);
-    let area: f64 = (cy - 2..=cy + 2).map(|y| 5.0 * sa[y] as f64).sum();
-    let view = LightView {
-        surface: Surface::Plane {
-            point: glam::Vec3::new(0.0, 0.0, 2.6),
-            normal: glam::Vec3::Z,
-        },
-        probes: [(&seen, &probes[0]), (&seen, &probes[1])],
-        frame,
+    // The patch where the frame looks 45 degrees up, mid-panorama.
+    let up = |frame: &crate::scene::Pose| {
+        let z =
+            |y: usize| (frame.world_from_camera * crate::sphere::pixel_to_dir(w / 2, y, w, h)).z;
+        let target = std::f32::consts::FRAC_1_SQRT_2;
+        let y = (0..h)
+            .min_by(|&a, &b| (z(a) - target).abs().total_cmp(&(z(b) - target).abs()))
+            .unwrap();
+        (w / 2, y)
     };
-    let light = FrameLight {
-        dir: crate::sphere::pixel_to_dir(cx, cy, w, h),
-        power: 20.0 * area,
-        radiance: 50.0,
-        peak: 50.0,
-        view: Some(view),
-        seen: [20.0 * area; 2],
-        distance: Some(1.5),
-    };
+    let c = CeilingPatch::new(w, h, up);
+    let (sdr, lin, area) = (&c.sdr, &c.lin, c.area);
+    let light = c.light(up(&c.frame));
     let est = HdrImage::from_fn(w, h, |_, _| [0.2; 3]);
     let added = |fill_to_peak: bool| {
         let p = FusionParams {
@@ -1754,7 +1788,7 @@ fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
             fill_to_peak,
             ..Default::default()
         };
-        let out = fuse_landed(&sdr, &lin, &est, light, &p);
+        let out = fuse_landed(sdr, lin, &est, light, &p);
         let peak = (0..w * h)
             .map(|i| luminance(out.get(i % w, i / w)))
             .fold(0.0f32, f32::max);
@@ -1777,50 +1811,24 @@ fn a_light_carried_dimmer_than_its_power_fills_its_pixels_up_to_its_peak() {
 
 #[test]
 fn a_light_moved_into_its_region_does_not_raise_its_carried_pixels() {
-    // The frame and probes of the test above, with the light's direction two
-    // pixels beside the patch: it is moved into the region, and a moved
-    // light's power is less sure than the surface lookup, so the patch keeps
-    // the lookup's 4 above white.
-    use lights::tests::upright;
-    use lights::{LightView, Surface};
+    // The ceiling patch of the test above, at (64, 20), with the light's
+    // direction four pixels beside it: it is moved into the region, and a
+    // moved light's power is less sure than the surface lookup, so the patch
+    // keeps the lookup's 4 above white.
     let (w, h) = (128, 64);
-    let frame = upright(glam::Vec3::new(0.0, 0.0, 1.5));
-    let probes = [
-        upright(glam::Vec3::new(1.0, 0.0, 1.5)),
-        upright(glam::Vec3::new(-1.0, 0.0, 1.5)),
-    ];
-    let seen = HdrImage::from_fn(w, h, |_, _| [5.0; 3]);
     let (cx, cy) = (64, 20);
-    let (sdr, lin) = frame_with_lamp(w, h, (cx, cy), 2);
-    let sa = row_solid_angles(w, h);
-    let area: f64 = (cy - 2..=cy + 2).map(|y| 5.0 * sa[y] as f64).sum();
-    let view = LightView {
-        surface: Surface::Plane {
-            point: glam::Vec3::new(0.0, 0.0, 2.6),
-            normal: glam::Vec3::Z,
-        },
-        probes: [(&seen, &probes[0]), (&seen, &probes[1])],
-        frame,
-    };
+    let c = CeilingPatch::new(w, h, |_| (cx, cy));
+    let (sdr, lin, area) = (&c.sdr, &c.lin, c.area);
     let est = HdrImage::from_fn(w, h, |_, _| [0.2; 3]);
     let p = FusionParams {
         margin_px: 0,
         ..Default::default()
     };
-    let at = |x: usize| FrameLight {
-        dir: crate::sphere::pixel_to_dir(x, cy, w, h),
-        power: 20.0 * area,
-        radiance: 50.0,
-        peak: 50.0,
-        view: Some(view),
-        seen: [20.0 * area; 2],
-        distance: Some(1.5),
-    };
     let added = |x: usize| {
         let (out, rep) = fuse_with_lights(
-            &Measured::new(&sdr, &lin, 1.0),
+            &Measured::new(sdr, lin, 1.0),
             &est,
-            &[at(x)],
+            &[c.light((x, cy))],
             None,
             None,
             &p,
