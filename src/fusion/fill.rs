@@ -517,7 +517,7 @@ fn fill_full(
         let excess = (le - white).max(0.0) as f64;
         let f = &reg.fill;
         let rest = f.rest - f.lamp_rest;
-        let lamp = if f.lamp_rest > 0.0 && under[i] {
+        let lamp = if f.lamp_rest > 0.0 && under.get(i) == Some(&true) {
             f.lamp_rest / f.under_light
         } else {
             0.0
@@ -562,9 +562,9 @@ fn fill_full(
 /// A region whose missed pixels could not take its rest (each at most
 /// `missed_cap`, the region's placed lights' largest peak) raises its carried
 /// pixels toward that cap, evenly in the room each has, until the rest is
-/// placed or every pixel is at the cap ([`FusionParams::fill_to_peak`]). Only where the light's own direction
-/// fell in the region: a light moved into it is less sure of its power than
-/// the surface lookup.
+/// placed or every pixel is at the cap ([`FusionParams::fill_to_peak`]).
+/// Only where the light's own direction fell in the region: a light moved
+/// into it is less sure of its power than the surface lookup.
 fn top_up_carried(
     frame: &Measured,
     px: &Pixels,
@@ -578,8 +578,9 @@ fn top_up_carried(
     let mut room = vec![0.0f64; regions.len()];
     for (&i, &c) in full_radiance {
         let o = px.lab[i] as usize;
-        if let Some(cap) = regions[o].fill.missed_cap {
-            room[o] += (cap - excess(&regions[o], c)).max(0.0) * px.solid_angle(i);
+        let r = &regions[o];
+        if let (Some(cap), false) = (r.fill.missed_cap, r.placed.view_moved) {
+            room[o] += (cap - excess(r, c)).max(0.0) * px.solid_angle(i);
         }
     }
     for (&i, &c) in full_radiance {
