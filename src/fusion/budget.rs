@@ -4,13 +4,14 @@
 
 use super::ledger::Hidden;
 use super::regions::{Disc, Kind, Pixels, Region};
-use super::{Fallback, FrameLight, FusionParams, LightReport};
+use super::{Fallback, FrameLight, FusionParams, LightReport, Measured};
 use crate::sphere::dir_to_uv;
 
 /// Assigns each placed light to the region its direction falls in, or to the
 /// region nearest in direction within `max_angle_deg` whose estimate holds a
 /// power within `max_move_ratio` of the light's; reports where each went.
 pub(super) fn assign_placed<'v>(
+    frame: &Measured,
     px: &Pixels,
     regions: &mut [Region<'v>],
     placed: &'v [FrameLight<'v>],
@@ -23,7 +24,8 @@ pub(super) fn assign_placed<'v>(
     let full = if placed.is_empty() {
         Vec::new()
     } else {
-        full_pixels(px, regions.len())
+        let bled = p.censored_lights && p.bled_hold;
+        full_pixels(frame, px, regions.len(), bled)
     };
     let mut report = Vec::with_capacity(placed.len());
     for light in placed {
@@ -73,14 +75,22 @@ pub(super) fn assign_placed<'v>(
         // channels) holds it in its partly clipped pixels.
         let gap_deg = match target {
             Some(o) if px.region(y * w + x) == Some(o) && px.kinds[y * w + x] == Kind::Full => 0.0,
-            Some(o) => nearest_deg(px, &full[o], d),
+            Some(o) => nearest_deg(px, &full[o].0, d),
             None => 0.0,
         };
         if let Some(o) = target {
             let radius = (crate::sphere::disc_radius(solid) as f32).to_degrees();
             let inside = px.region(y * w + x).is_some();
-            let holds = !full[o].is_empty();
-            if inside && holds && light.view.is_none() && gap_deg > p.max_move_deg + radius {
+            let holds = !full[o].0.is_empty();
+            // A pixel that measured nothing where the light is (within a pixel:
+            // the bleed's size) is where the frame sees it.
+            let seen = || under_disc(px, &full[o].1, d, 0.0);
+            if inside
+                && holds
+                && light.view.is_none()
+                && gap_deg > p.max_move_deg + radius
+                && !seen()
+            {
                 fallbacks.push(Fallback::Hidden {
                     light: report.len(),
                     region: o,
@@ -159,18 +169,31 @@ pub(super) fn assign_placed<'v>(
     report
 }
 
-/// The fully clipped pixels of each of `n` regions: the pixels that could
-/// hold a light.
-fn full_pixels(px: &Pixels, n: usize) -> Vec<Vec<u32>> {
-    let mut out = vec![Vec::new(); n];
+/// The fully clipped pixels of each of `n` regions (the pixels that could hold
+/// a light), and with `bled` its partly clipped pixels that measured nothing
+/// (every channel bleeds).
+fn full_pixels(frame: &Measured, px: &Pixels, n: usize, bled: bool) -> Vec<(Vec<u32>, Vec<u32>)> {
+    let mut out = vec![(Vec::new(), Vec::new()); n];
     for i in 0..px.w * px.h {
-        if let Some(o) = px.region(i) {
-            if px.kinds[i] == Kind::Full {
-                out[o].push(i as u32);
-            }
+        let Some(o) = px.region(i) else { continue };
+        match px.kinds[i] {
+            Kind::Full => out[o].0.push(i as u32),
+            Kind::Partial if bled && frame.measured_nothing(i) => out[o].1.push(i as u32),
+            _ => {}
         }
     }
     out
+}
+
+/// Whether one of `pixels` lies under a disc of angular `radius` (radians)
+/// about `d`, within a pixel (the bleed's size).
+fn under_disc(px: &Pixels, pixels: &[u32], d: glam::Vec3, radius: f32) -> bool {
+    let d = d.normalize_or_zero();
+    pixels.iter().any(|&i| {
+        let i = i as usize;
+        let pixel = (px.solid_angle(i) as f32).sqrt();
+        px.dir(i).dot(d).clamp(-1.0, 1.0).acos() <= radius + pixel
+    })
 }
 
 /// The angle (degrees) from direction `d` to the nearest of `pixels`' centres
@@ -199,16 +222,25 @@ fn bounded(
 }
 
 /// The power each region receives (`fill.target`).
-pub(super) fn target_power(regions: &mut [Region], fallbacks: &mut Vec<Fallback>) {
+pub(super) fn target_power(
+    regions: &mut [Region],
+    p: &FusionParams,
+    fallbacks: &mut Vec<Fallback>,
+) {
     for (o, r) in regions.iter_mut().enumerate() {
         let (e, a) = (&r.estimate, &r.placed);
+        let radiance = if p.bound_by_peak {
+            a.radiance.max(a.peak)
+        } else {
+            a.radiance
+        };
         r.fill.target = if a.any && a.radiance > 0.0 {
-            // No part of a source looks brighter than a probe saw it on average
-            // (radiance is invariant along rays), so the region can hold at most
-            // that radiance over its solid angle: this bounds the inverse-square
-            // extrapolation for a frame close to a large source (a window, a lamp
-            // shade overhead).
-            bounded(a.power, a.radiance * r.area, fallbacks, |power, held| {
+            // No part of a source looks brighter than a probe saw it (radiance
+            // is invariant along rays; its peak with `bound_by_peak`, else its
+            // mean), so the region can hold at most that radiance over its solid
+            // angle: this bounds the inverse-square extrapolation for a frame
+            // close to a large source (a window, a lamp shade overhead).
+            bounded(a.power, radiance * r.area, fallbacks, |power, held| {
                 Fallback::RadianceBound {
                     region: o,
                     placed_power: power,

@@ -337,7 +337,6 @@ fn promote_under_discs(
     look: &Lookups,
 ) -> Vec<bool> {
     let white = frame.white;
-    let codes = frame.codes.data();
     let mut under = vec![false; px.w * px.h];
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
@@ -345,7 +344,7 @@ fn promote_under_discs(
         if !matches!(px.kinds[i], Kind::Partial | Kind::Full) || r.placed.discs.is_empty() {
             continue;
         }
-        if !(0..3).all(|k| frame.censor.bleeds(codes[3 * i + k])) {
+        if !frame.measured_nothing(i) {
             continue;
         }
         if matches!(look.light(regions, o, i), Some(c) if luminance(c) > white) {

@@ -1909,3 +1909,96 @@ fn the_far_lookup_skips_a_lamp_hidden_behind_the_facade() {
         "{off} without the skip, {on} with it"
     );
 }
+
+#[test]
+fn a_lamp_seen_only_as_pixels_that_measured_nothing_is_not_hidden() {
+    // One region: a clipped lamp at column 40, a facade clipped in red
+    // (43..52) and at its end a 2x2 lamp whose channels JPEG left at
+    // (255, 250, 240) (52..54), 33 degrees from the fully clipped pixels. The
+    // probes place a lamp there: with `bled_hold` the frame sees it on those
+    // pixels; without, its nearest fully clipped pixel is too far for a move
+    // and it is taken as hidden.
+    let (w, h) = (128, 64);
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    paint(
+        &mut codes,
+        &mut lin,
+        (43..52, 19..22),
+        [255, 180, 180],
+        [1.0, 0.5, 0.5],
+    );
+    paint(
+        &mut codes,
+        &mut lin,
+        (52..54, 20..22),
+        [255, 250, 240],
+        [1.0, 0.97, 0.9],
+    );
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = lamp_estimate(w, h);
+    let lamp = 0.05;
+    let light = compact_light(w, h, (52, 20), lamp, 5000.0);
+    let sa = row_solid_angles(w, h);
+    let p = |bled_hold: bool| FusionParams {
+        margin_px: 0,
+        bled_hold,
+        ..Default::default()
+    };
+    let out = fuse_landed(&sdr, &lin, &est, light, &p(true));
+    let on: f64 = (20..22)
+        .flat_map(|y| (52..54).map(move |x| (x, y)))
+        .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
+        .sum();
+    assert!(on > 0.8 * lamp, "{on} of {lamp} on the lamp's pixels");
+    let (_, rep) = fuse_with_lights(
+        &Measured::new(&sdr, &lin, 1.0),
+        &est,
+        &[light],
+        None,
+        None,
+        &p(false),
+    )
+    .unwrap();
+    assert_eq!(rep.lights[0].region, None, "{:?}", rep.fallbacks);
+    assert!(
+        rep.fallbacks
+            .iter()
+            .any(|f| matches!(f, super::Fallback::Hidden { light: 0, .. })),
+        "{:?}",
+        rep.fallbacks
+    );
+}
+
+#[test]
+fn a_lamp_brighter_at_its_core_than_on_average_keeps_its_power() {
+    // The probes saw a lamp with its shade: a mean radiance that would hold
+    // 1% of its power in the frame's clipped region, a peak that holds all
+    // of it. Bounded by the peak (`bound_by_peak`), the region takes the
+    // lamp's power; bounded by the mean, 1%.
+    let (w, h) = (128, 64);
+    let (sdr, lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let est = lamp_estimate(w, h);
+    let light = compact_light(w, h, (40, 20), 1.0, 0.0);
+    let fuse = |l: FrameLight, bound_by_peak: bool| {
+        let p = FusionParams {
+            margin_px: 0,
+            bound_by_peak,
+            ..Default::default()
+        };
+        fuse_with_lights(&Measured::new(&sdr, &lin, 1.0), &est, &[l], None, None, &p)
+            .unwrap()
+            .1
+    };
+    let a = fuse(light, false).blobs[0].solid_angle_sr;
+    let shaded = FrameLight {
+        radiance: 0.01 / a,
+        peak: 10.0 / a,
+        ..light
+    };
+    let filled = |rep: &super::FusionReport| rep.blobs[0].filled_power;
+    let rep = fuse(shaded, true);
+    assert!((filled(&rep) - 1.0).abs() < 0.05, "{:?}", rep.blobs[0]);
+    let rep = fuse(shaded, false);
+    assert!((filled(&rep) - 0.01).abs() < 2e-3, "{:?}", rep.blobs[0]);
+}
