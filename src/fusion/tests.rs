@@ -1639,6 +1639,33 @@ fn fuse_landed(
     out
 }
 
+/// A frame with a clipped lamp at (40, 20), a facade clipped in red from
+/// column 43 to `lamp_x` (rows 19..22) and a 2x2 lamp at `lamp_x` (rows 20..22)
+/// coded `code` (as JPEG left it) with radiance `v`: one region.
+fn facade_and_bled_lamp(
+    w: usize,
+    h: usize,
+    lamp_x: usize,
+    code: [u8; 3],
+    v: [f32; 3],
+) -> (SdrImage, HdrImage) {
+    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
+    let mut codes = sdr.data().to_vec();
+    let red = ([255, 180, 180], [1.0, 0.5, 0.5]);
+    paint(&mut codes, &mut lin, (43..lamp_x, 19..22), red.0, red.1);
+    paint(&mut codes, &mut lin, (lamp_x..lamp_x + 2, 20..22), code, v);
+    (SdrImage::from_vec(w, h, codes).unwrap(), lin)
+}
+
+/// Power above the white point (1) on the 2x2 lamp of [`facade_and_bled_lamp`].
+fn on_bled_lamp(out: &HdrImage, lamp_x: usize) -> f64 {
+    let sa = row_solid_angles(out.width(), out.height());
+    (20..22)
+        .flat_map(|y| (lamp_x..lamp_x + 2).map(move |x| (x, y)))
+        .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
+        .sum()
+}
+
 #[test]
 fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
     // The clipped lamp at column 40 (every channel), a facade clipped in red
@@ -1648,27 +1675,10 @@ fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
     // on those pixels (nothing was measured there); without, on the fully
     // clipped lamp 17 degrees away.
     let (w, h) = (128, 64);
-    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let mut codes = sdr.data().to_vec();
-    paint(
-        &mut codes,
-        &mut lin,
-        (43..46, 19..22),
-        [255, 180, 180],
-        [1.0, 0.5, 0.5],
-    );
-    paint(
-        &mut codes,
-        &mut lin,
-        (46..48, 20..22),
-        [247, 255, 255],
-        [0.95, 1.0, 1.0],
-    );
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = facade_and_bled_lamp(w, h, 46, [247, 255, 255], [0.95, 1.0, 1.0]);
     let est = lamp_estimate(w, h);
     let lamp = 0.05;
     let light = compact_light(w, h, (46, 20), lamp, 5000.0);
-    let sa = row_solid_angles(w, h);
     let run = |censored_lights: bool| {
         let p = FusionParams {
             margin_px: 0,
@@ -1676,11 +1686,7 @@ fn a_lamp_on_pixels_that_measured_nothing_lands_there() {
             ..Default::default()
         };
         let out = fuse_landed(&sdr, &lin, &est, light, &p);
-        let on_second: f64 = (20..22)
-            .flat_map(|y| (46..48).map(move |x| (x, y)))
-            .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
-            .sum();
-        (on_second, power_above(&out, 1.0))
+        (on_bled_lamp(&out, 46), power_above(&out, 1.0))
     };
     let (on, total) = run(true);
     assert!(
@@ -1919,37 +1925,17 @@ fn a_lamp_seen_only_as_pixels_that_measured_nothing_is_not_hidden() {
     // pixels; without, its nearest fully clipped pixel is too far for a move
     // and it is taken as hidden.
     let (w, h) = (128, 64);
-    let (sdr, mut lin) = frame_with_lamp(w, h, (40, 20), 2);
-    let mut codes = sdr.data().to_vec();
-    paint(
-        &mut codes,
-        &mut lin,
-        (43..52, 19..22),
-        [255, 180, 180],
-        [1.0, 0.5, 0.5],
-    );
-    paint(
-        &mut codes,
-        &mut lin,
-        (52..54, 20..22),
-        [255, 250, 240],
-        [1.0, 0.97, 0.9],
-    );
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let (sdr, lin) = facade_and_bled_lamp(w, h, 52, [255, 250, 240], [1.0, 0.97, 0.9]);
     let est = lamp_estimate(w, h);
     let lamp = 0.05;
     let light = compact_light(w, h, (52, 20), lamp, 5000.0);
-    let sa = row_solid_angles(w, h);
     let p = |bled_hold: bool| FusionParams {
         margin_px: 0,
         bled_hold,
         ..Default::default()
     };
     let out = fuse_landed(&sdr, &lin, &est, light, &p(true));
-    let on: f64 = (20..22)
-        .flat_map(|y| (52..54).map(move |x| (x, y)))
-        .map(|(x, y)| (luminance(out.get(x, y)) - 1.0).max(0.0) as f64 * sa[y] as f64)
-        .sum();
+    let on = on_bled_lamp(&out, 52);
     assert!(on > 0.8 * lamp, "{on} of {lamp} on the lamp's pixels");
     let (_, rep) = fuse_with_lights(
         &Measured::new(&sdr, &lin, 1.0),
