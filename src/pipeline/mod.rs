@@ -882,6 +882,7 @@ fn predict_held(
         };
         base.flow.sdr_calibrated = true;
         base.flow.sdr_cost = params.fusion.sdr_label_cost;
+        base.flow.work_width = base_work_width(base.flow.work_width, params.fusion.base_pixel_deg);
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) =
@@ -1043,9 +1044,43 @@ pub fn existing_prediction(out_dir: &Path, frame: &Frame) -> Result<PathBuf> {
     Ok(p)
 }
 
+/// The base method's working width for fusion: at most `360 / pixel_deg`
+/// pixels (`pixel_deg` > 0), within the method's own (`work_width`, 0 = the
+/// frame's size).
+fn base_work_width(work_width: usize, pixel_deg: f32) -> usize {
+    if !(pixel_deg.is_finite() && pixel_deg > 0.0) {
+        return work_width;
+    }
+    let most = ((360.0 / pixel_deg).round() as usize).max(8);
+    if work_width == 0 {
+        most
+    } else {
+        work_width.min(most)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fusions_base_works_at_most_at_its_angular_pixel_size() {
+        let deg = crate::fusion::FusionParams::default().base_pixel_deg;
+        assert_eq!(base_work_width(2048, deg), 256);
+        assert_eq!(base_work_width(0, deg), 256);
+        assert_eq!(base_work_width(128, deg), 128);
+        assert_eq!(base_work_width(2048, 0.7), 514);
+        assert_eq!(base_work_width(2048, 0.0), 2048);
+        assert_eq!(base_work_width(2048, f32::NAN), 2048);
+        // A 256-wide frame keeps its full size; a 512-wide one halves.
+        let p = crate::flow::method::FlowMethodParams {
+            work_width: base_work_width(2048, deg),
+            ..Default::default()
+        };
+        assert_eq!(p.work_factor(256), 1);
+        assert_eq!(p.work_factor(512), 2);
+        assert_eq!(p.work_factor(7776), 31);
+    }
 
     #[test]
     fn a_pairs_lights_are_made_once_per_ordered_pair() {
