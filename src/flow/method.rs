@@ -693,8 +693,12 @@ fn area_resample(
     h: usize,
     k: usize,
     f: impl Fn(f32, f32) -> [f32; 3] + Sync,
+    px: impl Fn(usize) -> [f32; 3] + Sync,
 ) -> HdrImage {
     use rayon::prelude::*;
+    // When `w = k ws` and `h = k hs` every sample is a pixel centre, where `f`
+    // (a bilinear sample) is the pixel itself: `px(i)` reads it directly.
+    let centres = w == ws * k && h == hs * k;
     let (sx, sy) = (w as f32 / (ws * k) as f32, h as f32 / (hs * k) as f32);
     let norm = 1.0 / (k * k) as f32;
     let mut out = HdrImage::new(ws, hs);
@@ -707,8 +711,11 @@ fn area_resample(
                 for b in 0..k {
                     let y = ((j * k + b) as f32 + 0.5) * sy;
                     for a in 0..k {
-                        let x = ((i * k + a) as f32 + 0.5) * sx;
-                        let v = f(x, y);
+                        let v = if centres {
+                            px((j * k + b) * w + i * k + a)
+                        } else {
+                            f(((i * k + a) as f32 + 0.5) * sx, y)
+                        };
                         for c in 0..3 {
                             acc[c] += v[c];
                         }
@@ -883,7 +890,15 @@ pub fn flow_frame_scaled(
             c[2] as f32 / 255.0,
         ]
     };
-    let small_disp = area_resample(ws, hs, w, h, k, |x, y| sample_px_by(w, h, x, y, display));
+    let small_disp = area_resample(
+        ws,
+        hs,
+        w,
+        h,
+        k,
+        |x, y| sample_px_by(w, h, x, y, display),
+        display,
+    );
     let small_sdr = SdrImage::from_vec(ws, hs, crate::tonemap::quantize(small_disp.data()))?;
     drop(small_disp);
     // A working pixel with a clipped sample in a channel only bounds that channel
@@ -894,19 +909,39 @@ pub fn flow_frame_scaled(
         let c = &codes[3 * i..3 * i + 3];
         [0, 1, 2].map(|k| if p.censor.clipped(c[k]) { 1.0f32 } else { 0.0 })
     };
-    let small_clipped: Vec<bool> = area_resample(ws, hs, w, h, k, |x, y| {
-        // Nearest pixel: a bilinear tap would lend a neighbour's flag.
-        let (xi, yi) = (
-            (x.max(0.0) as usize).min(w - 1),
-            (y.max(0.0) as usize).min(h - 1),
-        );
-        clip_flag(yi * w + xi)
-    })
+    let small_clipped: Vec<bool> = area_resample(
+        ws,
+        hs,
+        w,
+        h,
+        k,
+        |x, y| {
+            // Nearest pixel: a bilinear tap would lend a neighbour's flag.
+            let (xi, yi) = (
+                (x.max(0.0) as usize).min(w - 1),
+                (y.max(0.0) as usize).min(h - 1),
+            );
+            clip_flag(yi * w + xi)
+        },
+        clip_flag,
+    )
     .data()
     .iter()
     .map(|&share| share > 0.0)
     .collect();
-    let small_lin = area_resample(ws, hs, w, h, k, |x, y| sample_px(sdr_linear, x, y));
+    let pixel = |img: &HdrImage, i: usize| {
+        let d = img.data();
+        [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
+    };
+    let small_lin = area_resample(
+        ws,
+        hs,
+        w,
+        h,
+        k,
+        |x, y| sample_px(sdr_linear, x, y),
+        |i| pixel(sdr_linear, i),
+    );
     // Each source is area-averaged in its own axes to about the working size, then
     // rotated into the frame's: sampling the full-size source k x k times per
     // working pixel through the rotation costs as much as rotating it at full size.
@@ -922,7 +957,15 @@ pub fn flow_frame_scaled(
                 ((pw as f64 / kp as f64).round() as usize).max(8),
                 ((ph as f64 / kp as f64).round() as usize).max(4),
             );
-            let reduced = area_resample(pws, phs, pw, ph, kp, |x, y| sample_px(s.image, x, y));
+            let reduced = area_resample(
+                pws,
+                phs,
+                pw,
+                ph,
+                kp,
+                |x, y| sample_px(s.image, x, y),
+                |i| pixel(s.image, i),
+            );
             crate::sphere::rotate(&reduced, s.rotation, ws, hs)
         })
         .collect();
