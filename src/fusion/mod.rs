@@ -210,6 +210,18 @@ pub struct FusionParams {
     /// 0.1609 and validation 0.0761 -> 0.0846 (docs/speed.md).
     #[serde(default = "default_base_pixel_deg")]
     pub base_pixel_deg: f32,
+    /// Angular size (degrees) of a pixel of the base estimate's finest optical
+    /// flow level (DIS's finest pyramid level): the base's flow is no finer
+    /// (a coarser preset or setting stays). 0: as the flow settings give it.
+    /// The default is what the flow method's `fast` preset gives at 256
+    /// across, so frames up to 256 wide are unchanged; at 512x256 the base's
+    /// flows then cost a third (docs/speed.md).
+    #[serde(default = "default_base_flow_deg")]
+    pub base_flow_deg: f32,
+}
+
+fn default_base_flow_deg() -> f32 {
+    4.0 * 360.0 / 256.0
 }
 
 fn default_base_pixel_deg() -> f32 {
@@ -294,6 +306,7 @@ impl Default for FusionParams {
             ledger: default_ledger(),
             walk: walk::WalkParams::default(),
             base_pixel_deg: default_base_pixel_deg(),
+            base_flow_deg: default_base_flow_deg(),
         }
     }
 }
