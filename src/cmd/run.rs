@@ -52,9 +52,11 @@ pub struct RunArgs {
     /// docs/consumer-video.md)
     #[arg(long, requires = "calibrate", hide = true)]
     pub vignetting: bool,
-    /// Compression of the per-frame EXR files. On lumiprobe's outputs ZIP is
-    /// the smallest (a quarter of the raw size for kitchen at 7776x3888) and
-    /// PIZ writes 3x faster at 1.2x ZIP's size; none is the fastest.
+    /// Compression of the per-frame EXR files. By default (`auto`) PIZ under
+    /// 4096 pixels wide, where it is both smaller and faster to write than ZIP
+    /// (kitchen at 512x256), and ZIP from there, the smallest at 7776x3888 (a
+    /// quarter of the raw size, where PIZ writes 3x faster at 1.2x ZIP's
+    /// size); none is the fastest.
     #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
     pub exr_compression: lumiprobe::image::io::ExrCompression,
     /// A setting without a flag of its own, as KEY=VALUE (a path into the
