@@ -51,6 +51,12 @@ impl Default for FlowParams {
     }
 }
 
+/// Pyramid levels a reduction by `k` moves the flow's finest level down
+/// (`log2 k`, rounded).
+pub fn level_shift(k: usize) -> i32 {
+    (k.max(1) as f64).log2().round() as i32
+}
+
 impl FlowPreset {
     /// OpenCV's finest pyramid level for the preset.
     pub fn finest_scale(self) -> i32 {
@@ -67,11 +73,16 @@ impl FlowParams {
     /// the full-size image as it would be there (DIS's patch size and finest level
     /// are in pixels).
     pub fn reduced(&self, k: usize) -> FlowParams {
-        let shift = (k.max(1) as f64).log2().round() as i32;
-        let finest = self.finest_scale.unwrap_or(self.preset.finest_scale());
+        let shift = level_shift(k);
+        let finest = self.finest();
         let mut r = self.clone();
         r.finest_scale = Some((finest - shift).max(0));
         r
+    }
+
+    /// The finest pyramid level these settings give (the preset's unless set).
+    pub fn finest(&self) -> i32 {
+        self.finest_scale.unwrap_or(self.preset.finest_scale())
     }
 
     fn dis(&self) -> DisParams {

@@ -134,6 +134,50 @@ impl FlowMethodParams {
             width.div_ceil(self.work_width)
         }
     }
+
+    /// The working size of a `w x h` frame (`w / k`, `h / k` rounded).
+    pub fn work_size(&self, w: usize, h: usize) -> (usize, usize) {
+        let k = self.work_factor(w) as f64;
+        (
+            ((w as f64 / k).round() as usize).max(8),
+            ((h as f64 / k).round() as usize).max(4),
+        )
+    }
+
+    /// The working width at most `360 / pixel_deg` pixels (`pixel_deg` > 0),
+    /// within these settings' own (`work_width`, 0 = the frame's size).
+    pub fn work_width_at_most(&self, pixel_deg: f32) -> usize {
+        if !(pixel_deg.is_finite() && pixel_deg > 0.0) {
+            return self.work_width;
+        }
+        let most = ((360.0 / pixel_deg).round() as usize).max(8);
+        if self.work_width == 0 {
+            most
+        } else {
+            self.work_width.min(most)
+        }
+    }
+
+    /// The finest flow level (in the frame's pixels, as `flow.finest_scale`)
+    /// for a frame `w` pixels wide so that at the working size a pixel of it
+    /// is no finer than `flow_deg` degrees, and never finer than these
+    /// settings give (unchanged when they already are that coarse).
+    pub fn finest_scale_at_least(&self, w: usize, flow_deg: f32) -> Option<i32> {
+        if !(flow_deg.is_finite() && flow_deg > 0.0) || w == 0 {
+            return self.flow.finest_scale;
+        }
+        let (ws, _) = self.work_size(w, 1);
+        let level = ((flow_deg as f64) / (360.0 / ws as f64))
+            .log2()
+            .round()
+            .max(0.0) as i32;
+        let want = level + crate::flow::dense::level_shift(self.work_factor(w));
+        if want > self.flow.finest() {
+            Some(want)
+        } else {
+            self.flow.finest_scale
+        }
+    }
 }
 
 impl Default for FlowMethodParams {
@@ -879,8 +923,7 @@ pub fn flow_frame_scaled(
         return flow_frame(sdr, sdr_linear, &plain, response, gain, p);
     }
     let t = Instant::now();
-    let ws = ((w as f64 / k as f64).round() as usize).max(8);
-    let hs = ((h as f64 / k as f64).round() as usize).max(4);
+    let (ws, hs) = p.work_size(w, h);
     let codes = sdr.data();
     let display = |i: usize| {
         let c = &codes[3 * i..3 * i + 3];

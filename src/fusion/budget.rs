@@ -84,7 +84,7 @@ pub(super) fn assign_placed<'v>(
             let holds = !full[o].0.is_empty();
             // A pixel that measured nothing where the light is (within a pixel:
             // the bleed's size) is where the frame sees it.
-            let seen = || under_disc(px, &full[o].1, d, 0.0);
+            let seen = || within_a_pixel(px, &full[o].1, d);
             if inside
                 && holds
                 && light.view.is_none()
@@ -185,14 +185,14 @@ fn full_pixels(frame: &Measured, px: &Pixels, n: usize, bled: bool) -> Vec<(Vec<
     out
 }
 
-/// Whether one of `pixels` lies under a disc of angular `radius` (radians)
-/// about `d`, within a pixel (the bleed's size).
-fn under_disc(px: &Pixels, pixels: &[u32], d: glam::Vec3, radius: f32) -> bool {
+/// Whether one of `pixels` lies within a pixel (the bleed's size) of
+/// direction `d`.
+fn within_a_pixel(px: &Pixels, pixels: &[u32], d: glam::Vec3) -> bool {
     let d = d.normalize_or_zero();
     pixels.iter().any(|&i| {
         let i = i as usize;
         let pixel = (px.solid_angle(i) as f32).sqrt();
-        px.dir(i).dot(d).clamp(-1.0, 1.0).acos() <= radius + pixel
+        px.dir(i).dot(d).clamp(-1.0, 1.0).acos() <= pixel
     })
 }
 

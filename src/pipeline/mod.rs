@@ -882,8 +882,10 @@ fn predict_held(
         };
         base.flow.sdr_calibrated = true;
         base.flow.sdr_cost = params.fusion.sdr_label_cost;
-        base.flow.work_width = base_work_width(base.flow.work_width, params.fusion.base_pixel_deg);
-        base.flow.flow.finest_scale = base_finest_scale(&base.flow, w, params.fusion.base_flow_deg);
+        base.flow.work_width = base.flow.work_width_at_most(params.fusion.base_pixel_deg);
+        base.flow.flow.finest_scale = base
+            .flow
+            .finest_scale_at_least(w, params.fusion.base_flow_deg);
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) =
@@ -1045,84 +1047,9 @@ pub fn existing_prediction(out_dir: &Path, frame: &Frame) -> Result<PathBuf> {
     Ok(p)
 }
 
-/// The base method's working width for fusion: at most `360 / pixel_deg`
-/// pixels (`pixel_deg` > 0), within the method's own (`work_width`, 0 = the
-/// frame's size).
-fn base_work_width(work_width: usize, pixel_deg: f32) -> usize {
-    if !(pixel_deg.is_finite() && pixel_deg > 0.0) {
-        return work_width;
-    }
-    let most = ((360.0 / pixel_deg).round() as usize).max(8);
-    if work_width == 0 {
-        most
-    } else {
-        work_width.min(most)
-    }
-}
-
-/// The base method's finest flow level (in the frame's pixels, as
-/// `flow.flow.finest_scale`) for a frame `w` pixels wide: no finer than
-/// `flow_deg` degrees a pixel at its working size, and never finer than the
-/// flow settings give.
-fn base_finest_scale(
-    p: &crate::flow::method::FlowMethodParams,
-    w: usize,
-    flow_deg: f32,
-) -> Option<i32> {
-    if !(flow_deg.is_finite() && flow_deg > 0.0) || w == 0 {
-        return p.flow.finest_scale;
-    }
-    let current = p.flow.finest_scale.unwrap_or(p.flow.preset.finest_scale());
-    let k = p.work_factor(w);
-    let ws = ((w as f64 / k as f64).round()).max(8.0);
-    let shift = (k.max(1) as f64).log2().round() as i32;
-    let level = ((flow_deg as f64) / (360.0 / ws)).log2().round().max(0.0) as i32;
-    let want = level + shift;
-    if want > current {
-        Some(want)
-    } else {
-        p.flow.finest_scale
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fusions_base_works_at_most_at_its_angular_pixel_size() {
-        let deg = crate::fusion::FusionParams::default().base_pixel_deg;
-        assert_eq!(base_work_width(2048, deg), 256);
-        assert_eq!(base_work_width(0, deg), 256);
-        assert_eq!(base_work_width(128, deg), 128);
-        assert_eq!(base_work_width(2048, 0.7), 514);
-        assert_eq!(base_work_width(2048, 0.0), 2048);
-        assert_eq!(base_work_width(2048, f32::NAN), 2048);
-        // A 256-wide frame keeps its full size; a 512-wide one halves.
-        let p = crate::flow::method::FlowMethodParams {
-            work_width: base_work_width(2048, deg),
-            ..Default::default()
-        };
-        assert_eq!(p.work_factor(256), 1);
-        assert_eq!(p.work_factor(512), 2);
-        assert_eq!(p.work_factor(7776), 31);
-        // The base's finest flow level: as the preset gives it up to 256 wide,
-        // then no finer than 4 of those pixels (5.625 degrees).
-        let flow_deg = crate::fusion::FusionParams::default().base_flow_deg;
-        assert_eq!(base_finest_scale(&p, 128, flow_deg), None);
-        assert_eq!(base_finest_scale(&p, 256, flow_deg), None);
-        assert_eq!(base_finest_scale(&p, 512, flow_deg), Some(3));
-        assert_eq!(base_finest_scale(&p, 7776, flow_deg), Some(7));
-        assert_eq!(base_finest_scale(&p, 512, 0.0), None);
-        let medium = crate::flow::method::FlowMethodParams {
-            flow: crate::flow::dense::FlowParams {
-                finest_scale: Some(5),
-                ..Default::default()
-            },
-            ..p.clone()
-        };
-        assert_eq!(base_finest_scale(&medium, 512, flow_deg), Some(5));
-    }
 
     #[test]
     fn a_pairs_lights_are_made_once_per_ordered_pair() {

@@ -493,3 +493,46 @@ fn a_working_pixel_partly_clipped_bounds_its_light_from_below() {
     let got = out.get(41, 21)[1];
     assert!(got > 900.0, "the lamp's pixel holds {got}");
 }
+
+/// Flow settings with working width `w`.
+fn w(work_width: usize) -> FlowMethodParams {
+    FlowMethodParams {
+        work_width,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn fusions_base_works_at_most_at_its_angular_pixel_size() {
+    let deg = crate::fusion::FusionParams::default().base_pixel_deg;
+    assert_eq!(w(2048).work_width_at_most(deg), 256);
+    assert_eq!(w(0).work_width_at_most(deg), 256);
+    assert_eq!(w(128).work_width_at_most(deg), 128);
+    assert_eq!(w(2048).work_width_at_most(0.7), 514);
+    assert_eq!(w(2048).work_width_at_most(0.0), 2048);
+    assert_eq!(w(2048).work_width_at_most(f32::NAN), 2048);
+    // A 256-wide frame keeps its full size; a 512-wide one halves.
+    let p = FlowMethodParams {
+        work_width: w(2048).work_width_at_most(deg),
+        ..Default::default()
+    };
+    assert_eq!(p.work_factor(256), 1);
+    assert_eq!(p.work_factor(512), 2);
+    assert_eq!(p.work_factor(7776), 31);
+    // The base's finest flow level: as the preset gives it up to 256 wide,
+    // then no finer than 4 of those pixels (5.625 degrees).
+    let flow_deg = crate::fusion::FusionParams::default().base_flow_deg;
+    assert_eq!(p.finest_scale_at_least(128, flow_deg), None);
+    assert_eq!(p.finest_scale_at_least(256, flow_deg), None);
+    assert_eq!(p.finest_scale_at_least(512, flow_deg), Some(3));
+    assert_eq!(p.finest_scale_at_least(7776, flow_deg), Some(7));
+    assert_eq!(p.finest_scale_at_least(512, 0.0), None);
+    let medium = FlowMethodParams {
+        flow: crate::flow::dense::FlowParams {
+            finest_scale: Some(5),
+            ..Default::default()
+        },
+        ..p.clone()
+    };
+    assert_eq!(medium.finest_scale_at_least(512, flow_deg), Some(5));
+}

@@ -467,6 +467,20 @@ mod tests {
     }
 
     #[test]
+    fn auto_writes_piz_under_its_width_and_zip_from_it() {
+        let written = |w: usize| {
+            let img = HdrImage::from_fn(w, 2, |x, y| [x as f32, y as f32, 1.0]);
+            let b = encode(&img, Path::new("a.exr"), &ExrWriteOptions::default()).unwrap();
+            let meta =
+                ::exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&b), false).unwrap();
+            meta.headers[0].compression
+        };
+        use ::exr::compression::Compression;
+        assert_eq!(written(AUTO_ZIP_WIDTH - 1), Compression::PIZ);
+        assert_eq!(written(AUTO_ZIP_WIDTH), Compression::ZIP16);
+    }
+
+    #[test]
     fn half_overflow_errors_or_clamps() {
         let n = Path::new("big.exr");
         let mut img = sample();
