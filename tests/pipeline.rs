@@ -120,3 +120,33 @@ fn missing_inputs_are_named_in_errors() {
         .to_string();
     assert!(err.contains("poses.json"), "{err}");
 }
+
+#[test]
+fn probes_are_resampled_down_to_a_working_size_but_never_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    let s = scene(&tmp.path().join("scene"));
+    let (native, _) = lumiprobe::pipeline::load_probe(&s, 0, None).unwrap();
+    let (w, h) = (native.width(), native.height());
+    // A working size larger than the probe keeps the probe's own pixels.
+    let (up, _) = lumiprobe::pipeline::load_probe(&s, 0, Some((4 * w, 4 * h))).unwrap();
+    assert_eq!((up.width(), up.height()), (w, h));
+    assert_eq!(up.data(), native.data());
+    // A smaller one resamples it down.
+    let (down, _) = lumiprobe::pipeline::load_probe(&s, 0, Some((w / 2, h / 2))).unwrap();
+    assert_eq!((down.width(), down.height()), (w / 2, h / 2));
+    // A run at four times the probes' size reads them at their own size and
+    // writes every frame at the size asked for.
+    let out = tmp.path().join("big");
+    let params = RunParams {
+        method: lumiprobe::pipeline::Method::Fusion,
+        size: Some((4 * w, 4 * h)),
+        ..RunParams::default()
+    };
+    let rep = run(&s, &out, &params, &|_, _| {}).unwrap();
+    assert_eq!(rep.frames.len(), s.frames.len());
+    for f in &s.frames {
+        let img = lumiprobe::image::io::read_hdr(&out.join(format!("{}.exr", f.id))).unwrap();
+        assert_eq!((img.width(), img.height()), (4 * w, 4 * h));
+        assert_eq!(img.count_invalid(), 0);
+    }
+}

@@ -274,7 +274,13 @@ pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
     lin
 }
 
-/// Reads a probe's HDR panorama, repairs invalid samples and resamples it.
+/// Reads a probe's HDR panorama, repairs invalid samples and resamples it down
+/// to `size` when it is larger. A probe smaller than `size` keeps its own
+/// pixels: every method reads probes through a rotation at any size, an
+/// upsampled copy holds nothing a bilinear read of the probe does not, and at
+/// 7776x3888 it would take 360 MB per probe (fusion reads up to
+/// `fusion.far_probes` of them per frame). The ledger's ceiling then scales
+/// the probes' peak from their own pixel size, as for any smaller probe.
 pub fn load_probe(
     scene: &Scene,
     i: usize,
@@ -290,7 +296,9 @@ pub fn load_probe(
     let mut img = io::read_hdr(path)?;
     let repaired = img.repair_invalid();
     if let Some((w, h)) = size {
-        img = crate::sphere::resize(&img, w, h);
+        if img.width() > w || img.height() > h {
+            img = crate::sphere::resize(&img, w, h);
+        }
     }
     Ok((img, repaired))
 }
@@ -582,9 +590,14 @@ fn run_named(
         for &u in used {
             repaired += get_probe(u)?.1;
         }
-        let probe_size = get_probe(used[0])
-            .map(|(p, _)| (p.image.width(), p.image.height()))
-            .unwrap_or((sdr.width(), sdr.height()));
+        // At a size given, a smaller probe keeps its own pixels (load_probe):
+        // nothing to note.
+        let probe_size = match params.size {
+            Some(_) => (sdr.width(), sdr.height()),
+            None => get_probe(used[0])
+                .map(|(p, _)| (p.image.width(), p.image.height()))
+                .unwrap_or((sdr.width(), sdr.height())),
+        };
         note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
         let t = Instant::now();
         let lin = linearize(&sdr, scene, frame);
