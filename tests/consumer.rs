@@ -259,3 +259,151 @@ fn a_dual_fisheye_mp4_is_read_at_its_rate_stitched_and_fused_from_its_manifest()
         "irradiance error from the dual-fisheye video: mean {mean:.4}, worst {worst:.4}"
     );
 }
+
+/// Runs `lumiprobe` with `args`, asserts that it fails and returns its stderr.
+fn lumiprobe_fails(args: &[OsString]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_lumiprobe"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "lumiprobe {args:?} succeeded");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn bad_consumer_inputs_are_refused_naming_the_file_and_leave_earlier_outputs_alone() {
+    let scene = data::smoke_scene();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bad");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::os::unix::fs::symlink(scene.join("probes"), dir.join("probes")).unwrap();
+    std::fs::copy(scene.join("poses.json"), dir.join("poses.json")).unwrap();
+    // An output folder holding an earlier run's frame, which no refused run
+    // may touch.
+    let out = tmp.path().join("earlier");
+    std::fs::create_dir_all(&out).unwrap();
+    let earlier = out.join("frame_000.exr");
+    std::fs::write(&earlier, b"an earlier run's output").unwrap();
+    let manifest = |name: &str, frames: &str| {
+        let p = dir.join(name);
+        std::fs::write(
+            &p,
+            format!(
+                "name = \"bad\"\n[camera]\nresponse = \"srgb\"\ngain = 1.0\n\
+                 [[probe]]\nid = \"probe_00\"\nhdr = \"probes/probe_00.exr\"\n\
+                 [frames]\n{frames}\n[poses]\nfile = \"poses.json\"\n"
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let run = |m: &Path| -> String {
+        lumiprobe_fails(&[
+            "run".into(),
+            "--method".into(),
+            "fusion".into(),
+            "-q".into(),
+            "--out".into(),
+            out.clone().into(),
+            m.into(),
+        ])
+    };
+
+    // A video ffmpeg cannot read.
+    std::fs::write(dir.join("walk.mp4"), b"not a video at all").unwrap();
+    let err = run(&manifest("video.toml", "video = \"walk.mp4\"\nfps = 2.0"));
+    assert!(
+        err.contains("walk.mp4") && err.contains("ffmpeg could not read it"),
+        "{err}"
+    );
+
+    // Equirect frames declared as two fisheye circles.
+    let frames = dir.join("path");
+    std::fs::create_dir_all(&frames).unwrap();
+    let mut poses = json(&scene.join("poses.json"));
+    let ids: Vec<String> = poses["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["id"].as_str().unwrap().to_string())
+        .collect();
+    for id in &ids {
+        std::fs::copy(
+            scene.join("path").join(format!("{id}.jpg")),
+            frames.join(format!("{id}.jpg")),
+        )
+        .unwrap();
+    }
+    let err = run(&manifest(
+        "layout.toml",
+        "folder = \"path\"\npattern = \"frame_*.jpg\"\nlayout = \"dual-fisheye\"",
+    ));
+    assert!(
+        err.contains(&format!("{}.jpg", ids[0]))
+            && err.contains("frames.layout")
+            && err.contains("outside both lens circles"),
+        "{err}"
+    );
+
+    // One frame of another size: refused before any frame is computed, naming
+    // it and the first frame; with --size every frame is resampled and it runs.
+    let odd = frames.join(format!("{}.jpg", ids[2]));
+    let img = lumiprobe::image::io::read_sdr(&odd).unwrap();
+    let (w, h) = (img.width() / 2, img.height() / 2);
+    let half = lumiprobe::image::SdrImage::from_vec(
+        w,
+        h,
+        (0..w * h)
+            .flat_map(|i| img.get(2 * (i % w), 2 * (i / w)))
+            .collect(),
+    )
+    .unwrap();
+    lumiprobe::image::io::write_sdr(&odd, &half).unwrap();
+    for f in poses["frames"].as_array_mut().unwrap() {
+        let id = f["id"].as_str().unwrap().to_string();
+        f["sdr"] = serde_json::json!(format!("path/{id}.jpg"));
+    }
+    std::fs::write(dir.join("poses.json"), poses.to_string()).unwrap();
+    let err = lumiprobe_fails(&[
+        "run".into(),
+        "--method".into(),
+        "fusion".into(),
+        "-q".into(),
+        "--out".into(),
+        out.clone().into(),
+        dir.join("poses.json").into(),
+    ]);
+    assert!(
+        err.contains(&format!("{}.jpg", ids[2]))
+            && err.contains(&format!("{}.jpg", ids[0]))
+            && err.contains("--size"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&earlier).unwrap(),
+        b"an earlier run's output",
+        "a refused run changed an earlier output"
+    );
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        vec!["frame_000.exr".to_string()],
+        "a refused run wrote {names:?}"
+    );
+    let resized = dir.join("resized");
+    lumiprobe(&[
+        "run".into(),
+        "--method".into(),
+        "warp".into(),
+        "-q".into(),
+        "--size".into(),
+        format!("{}x{}", img.width(), img.height()).into(),
+        "--out".into(),
+        resized.clone().into(),
+        dir.join("poses.json").into(),
+    ]);
+    assert!(resized.join(format!("{}.exr", ids[2])).is_file());
+}

@@ -226,6 +226,43 @@ impl Lens {
 }
 
 /// Checks the settings against an input of `w x h` and returns both lenses.
+/// Share of an 8-bit dual-fisheye image's pixels lying well outside both image
+/// circles (beyond [`OUTSIDE_RADII`] radii from each lens's centre) that hold
+/// image content (a channel above [`BLACK_CODE`]): a two-lens camera leaves
+/// them black, while an equirect frame declared dual-fisheye fills them. `None`
+/// when fewer than 1% of the pixels lie there (circles that fill their halves).
+/// Fails as [`dual_fisheye_to_equirect`] does on a layout it cannot use.
+pub fn content_outside_circles(img: &SdrImage, cfg: &DualFisheye) -> Result<Option<f64>> {
+    let (w, h) = (img.width(), img.height());
+    let (a, b) = lenses(cfg, w, h)?;
+    let r = a.f * cfg.fov_deg.to_radians() / 2.0 * OUTSIDE_RADII;
+    let data = img.data();
+    let (mut n, mut lit) = (0usize, 0usize);
+    for y in 0..h {
+        let py = y as f32 + 0.5;
+        for x in 0..w {
+            let px = x as f32 + 0.5;
+            let outside = |l: &Lens| (px - l.cx).hypot(py - l.cy) > r;
+            if outside(&a) && outside(&b) {
+                n += 1;
+                let i = 3 * (y * w + x);
+                if data[i..i + 3].iter().any(|&c| c > BLACK_CODE) {
+                    lit += 1;
+                }
+            }
+        }
+    }
+    Ok((n * 100 >= w * h).then(|| lit as f64 / n as f64))
+}
+
+/// How far outside an image circle (in its radii) a pixel must lie to count as
+/// outside it: past the lens's rim fall-off and its JPEG ringing.
+const OUTSIDE_RADII: f32 = 1.1;
+
+/// The highest code a camera's black surround outside its image circles takes
+/// (sensor black level and compression noise).
+const BLACK_CODE: u8 = 48;
+
 fn lenses(cfg: &DualFisheye, w: usize, h: usize) -> Result<(Lens, Lens)> {
     let bad = |m: String| Err(Error::Invalid(m));
     if !cfg.fov_deg.is_finite() || !(180.0..=360.0).contains(&cfg.fov_deg) {
@@ -863,5 +900,39 @@ mod tests {
         let (u, v) = dir_to_uv(Vec3::X);
         let seam = out.get((u * ow as f32) as usize, (v * oh as f32) as usize)[0];
         assert!(seam > 3.5 && seam < 1e5, "seam value {seam}");
+    }
+
+    #[test]
+    fn an_equirect_frame_fills_what_lies_outside_the_lens_circles() {
+        // A textured panorama, as equirect and as two fisheye circles.
+        let pano = HdrImage::from_fn(256, 128, |x, y| {
+            let v = 0.3 + 0.6 * (((x / 9 + y / 7) % 2) as f32);
+            [v, 0.8 * v, 0.6 * v]
+        });
+        let to_sdr = |img: &HdrImage| {
+            let codes: Vec<u8> = img
+                .data()
+                .iter()
+                .map(|&v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
+                .collect();
+            SdrImage::from_vec(img.width(), img.height(), codes).unwrap()
+        };
+        let cfg = DualFisheye::new(195.0);
+        let fisheye = to_sdr(&render_dual_fisheye(&pano, 195.0, 256, 128));
+        let share = content_outside_circles(&fisheye, &cfg).unwrap().unwrap();
+        assert!(share < 0.01, "a dual-fisheye frame: {share}");
+        let equirect = to_sdr(&pano);
+        let share = content_outside_circles(&equirect, &cfg).unwrap().unwrap();
+        assert!(share > 0.9, "an equirect frame: {share}");
+        // Circles as tall as the image leave corners; circles that fill their
+        // halves leave too few pixels to judge.
+        let big = DualFisheye {
+            radius_px: Some(100.0),
+            ..cfg
+        };
+        assert_eq!(content_outside_circles(&equirect, &big).unwrap(), None);
+        // A layout the stitcher refuses is refused here too.
+        let narrow = SdrImage::from_vec(100, 100, vec![0; 100 * 100 * 3]).unwrap();
+        assert!(content_outside_circles(&narrow, &cfg).is_err());
     }
 }

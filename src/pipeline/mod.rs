@@ -274,6 +274,37 @@ pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
     lin
 }
 
+/// Without a working size every frame of the walk must have the first frame's
+/// size: the walk pass and the far sources' witnesses compare neighbouring
+/// frames, and a walk whose frames differ is most often frames of two cameras
+/// or exports mixed in one folder. Read from the files' headers before any
+/// frame is computed, so a refused run writes nothing. Fails naming the first
+/// frame that differs and the first frame.
+fn one_frame_size(scene: &Scene) -> Result<()> {
+    let mut first: Option<(&Path, (usize, usize))> = None;
+    for f in &scene.frames {
+        let d = io::sdr_dimensions(&f.sdr)?;
+        match first {
+            None => first = Some((&f.sdr, d)),
+            Some((p, d0)) if d != d0 => {
+                return Err(Error::Invalid(format!(
+                    "{}: the frame is {}x{} but the walk's first frame {} is {}x{}; a walk's \
+                     frames must share one size (give --size WxH to resample every frame \
+                     to it)",
+                    f.sdr.display(),
+                    d.0,
+                    d.1,
+                    p.display(),
+                    d0.0,
+                    d0.1
+                )))
+            }
+            Some(_) => {}
+        }
+    }
+    Ok(())
+}
+
 /// Reads a probe's HDR panorama, repairs invalid samples and resamples it down
 /// to `size` when it is larger. A probe smaller than `size` keeps its own
 /// pixels: every method reads probes through a rotation at any size, an
@@ -503,6 +534,9 @@ fn run_named(
     // sequence needs every frame.
     let mine = |i: usize| shard.map_or(true, |(k, c)| i % c == k);
     let whole_walk = shard.map_or(true, |(_, c)| c == 1);
+    if params.size.is_none() {
+        one_frame_size(scene)?;
+    }
     use rayon::prelude::*;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     crate::fsutil::remove_stale_temps(out_dir);

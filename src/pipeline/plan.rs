@@ -194,12 +194,32 @@ fn stitch_frames(files: &[PathBuf], fov_deg: f32, dir: &Path) -> Result<Vec<Path
         .try_for_each(|(src, dst)| -> Result<()> {
             let img = crate::image::io::read_sdr(src)?;
             let w = img.width();
+            let layout = |m: String| {
+                Error::Invalid(format!(
+                    "{}: as a dual-fisheye frame (frames.layout): {m}",
+                    src.display()
+                ))
+            };
+            // A frame that fills the corners outside both lens circles is not
+            // two fisheye circles (most often an equirect frame): stitching it
+            // would make a panorama of nonsense.
+            let filled = crate::capture::fisheye::content_outside_circles(&img, &cfg).map_err(
+                |e| match e {
+                    Error::Invalid(m) => layout(m),
+                    other => other,
+                },
+            )?;
+            if let Some(share) = filled.filter(|&s| s > 0.5) {
+                return Err(layout(format!(
+                    "{:.0}% of the pixels outside both lens circles hold image content, \
+                     where a two-lens camera leaves them black; if the frames are already \
+                     equirectangular, set frames.layout = \"equirect\"",
+                    100.0 * share
+                )));
+            }
             let eq =
                 dual_fisheye_to_equirect(&img, &cfg, w, (w / 2).max(1)).map_err(|e| match e {
-                    Error::Invalid(m) => Error::Invalid(format!(
-                        "{}: as a dual-fisheye frame (frames.layout): {m}",
-                        src.display()
-                    )),
+                    Error::Invalid(m) => layout(m),
                     other => other,
                 })?;
             let tmp = dst.with_extension("tmp.png");

@@ -13,7 +13,9 @@ pub mod pfm;
 pub mod rgbe;
 
 pub use self::exr::{ExrCompression, ExrWriteOptions, Overflow};
-pub use self::ldr::{linear_to_sdr, sdr_to_linear, sdr_to_linear_rgb};
+pub use self::ldr::{
+    dimensions as sdr_dimensions, linear_to_sdr, sdr_to_linear, sdr_to_linear_rgb,
+};
 
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
