@@ -350,6 +350,12 @@ fn encode_to(
         line_order: ::exr::meta::attribute::LineOrder::Increasing,
     };
     let attributes = ::exr::meta::header::LayerAttributes::default();
+    // The exr crate compresses on a thread pool of its own, as many threads as
+    // cores. Inside a worker of ours (`run` writes each frame on the worker
+    // that computed it, one frame per thread) that would oversubscribe the
+    // cores and ignore `--threads`: there the image is compressed on the
+    // worker's own thread.
+    let parallel = rayon::current_thread_index().is_none() && rayon::current_num_threads() > 1;
     let result = if opts.half {
         let (count, max) = img
             .data()
@@ -368,27 +374,33 @@ fn encode_to(
             let p = img.get(pos.x(), pos.y());
             (half(p[0]), half(p[1]), half(p[2]))
         });
-        ::exr::image::Image::from_layer(::exr::image::Layer::new(
+        let image = ::exr::image::Image::from_layer(::exr::image::Layer::new(
             (w, h),
             attributes,
             encoding,
             channels,
-        ))
-        .write()
-        .to_buffered(&mut out)
+        ));
+        if parallel {
+            image.write().to_buffered(&mut out)
+        } else {
+            image.write().non_parallel().to_buffered(&mut out)
+        }
     } else {
         let channels = ::exr::image::SpecificChannels::rgb(|pos: Vec2<usize>| {
             let p = img.get(pos.x(), pos.y());
             (p[0], p[1], p[2])
         });
-        ::exr::image::Image::from_layer(::exr::image::Layer::new(
+        let image = ::exr::image::Image::from_layer(::exr::image::Layer::new(
             (w, h),
             attributes,
             encoding,
             channels,
-        ))
-        .write()
-        .to_buffered(&mut out)
+        ));
+        if parallel {
+            image.write().to_buffered(&mut out)
+        } else {
+            image.write().non_parallel().to_buffered(&mut out)
+        }
     };
     result.map_err(|e| Error::Invalid(format!("{}: cannot encode OpenEXR: {e}", name.display())))
 }
