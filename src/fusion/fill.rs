@@ -574,15 +574,19 @@ fn top_up_carried(
     let white = frame.white as f64;
     let excess =
         |r: &Region, c: [f32; 3]| (luminance(c) as f64 - white).max(0.0) * r.fill.carried_gain;
+    // In pixel order, so the sums (and the output) do not depend on the
+    // map's iteration order, which changes from process to process.
+    let mut order: Vec<(usize, [f32; 3])> = full_radiance.iter().map(|(&i, &c)| (i, c)).collect();
+    order.sort_unstable_by_key(|&(i, _)| i);
     let mut room = vec![0.0f64; regions.len()];
-    for (&i, &c) in full_radiance {
+    for &(i, c) in &order {
         let o = px.lab[i] as usize;
         let r = &regions[o];
         if let (Some(cap), false) = (r.fill.missed_cap, r.placed.view_moved) {
             room[o] += (cap - excess(r, c)).max(0.0) * px.solid_angle(i);
         }
     }
-    for (&i, &c) in full_radiance {
+    for &(i, c) in &order {
         let o = px.lab[i] as usize;
         let r = &regions[o];
         let (Some(cap), true, false) = (r.fill.missed_cap, room[o] > 0.0, r.placed.view_moved)

@@ -37,7 +37,7 @@ use crate::scene::Pose;
 use crate::sphere::{pixel_to_dir, row_solid_angles};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 /// Angular size of the cells a probe's light above the white point is gathered
 /// in (degrees): an extended source (a window, the sky) is booked cell by cell
@@ -65,7 +65,9 @@ impl ProbeEvidence {
         let (w, h) = (img.width(), img.height());
         let sa = row_solid_angles(w, h);
         let (cw, ch) = ((360.0 / CELL_DEG) as usize, (180.0 / CELL_DEG) as usize);
-        let mut cells: HashMap<(usize, usize), (Vec3, f64)> = HashMap::new();
+        // Ordered by cell, so the cells' order (and every sum over them) is the
+        // same in every process.
+        let mut cells: BTreeMap<(usize, usize), (Vec3, f64)> = BTreeMap::new();
         let mut peak = [0.0f32; 3];
         for (i, p) in img.pixels().enumerate() {
             for k in 0..3 {

@@ -626,3 +626,27 @@ fn one_wrong_frame_in_a_walk_is_mended_by_its_neighbours_and_a_lamp_coming_into_
         }
     }
 }
+
+#[test]
+fn a_probes_evidence_is_the_same_list_every_time_it_is_gathered() {
+    // A uniformly bright band: many cells of exactly the same power, whose
+    // order only the gathering decides. Two gatherings (two maps, as two
+    // processes would build) must give the same list, or sums over it differ
+    // in their last bits from run to run.
+    let (w, h) = (180, 90);
+    let img = HdrImage::from_fn(w, h, |_, y| {
+        if (40..50).contains(&y) {
+            [8.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let pose = crate::scene::Pose {
+        position: glam::Vec3::ZERO,
+        world_from_camera: glam::Mat3::IDENTITY,
+    };
+    let a = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
+    let b = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
+    assert!(a.cells.len() > 100);
+    assert_eq!(a.cells, b.cells);
+}
