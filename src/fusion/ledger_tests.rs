@@ -20,6 +20,14 @@ fn added_power(out: &HdrImage, lin: &HdrImage) -> f64 {
 }
 
 /// The ledger only reported, not enforced (`fusion.ledger=null`).
+/// A probe or frame at the origin, in world axes.
+fn at_origin() -> crate::scene::Pose {
+    crate::scene::Pose {
+        position: glam::Vec3::ZERO,
+        world_from_camera: glam::Mat3::IDENTITY,
+    }
+}
+
 fn ledger_off() -> FusionParams {
     FusionParams {
         ledger: None,
@@ -358,10 +366,7 @@ fn sun_frame(
         size: probe,
         position: glam::Vec3::ZERO,
     };
-    let pose = crate::scene::Pose {
-        position: glam::Vec3::ZERO,
-        world_from_camera: glam::Mat3::IDENTITY,
-    };
+    let pose = at_origin();
     let ev = Evidence::at_frame(&[&seen], &pose, w, h);
     (SdrImage::from_vec(w, h, codes).unwrap(), lin, est, ev)
 }
@@ -410,10 +415,7 @@ fn a_probes_light_is_gathered_in_cells_that_keep_its_power_and_direction() {
             [0.3; 3]
         }
     });
-    let pose = crate::scene::Pose {
-        position: glam::Vec3::ZERO,
-        world_from_camera: glam::Mat3::IDENTITY,
-    };
+    let pose = at_origin();
     let pe = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
     let sa = row_solid_angles(w, h);
     let window: f64 = (20..30).map(|y| 20.0 * 49.0 * sa[y] as f64).sum();
@@ -641,10 +643,7 @@ fn a_probes_evidence_is_the_same_list_every_time_it_is_gathered() {
             [0.2; 3]
         }
     });
-    let pose = crate::scene::Pose {
-        position: glam::Vec3::ZERO,
-        world_from_camera: glam::Mat3::IDENTITY,
-    };
+    let pose = at_origin();
     let a = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
     let b = super::ledger::ProbeEvidence::new(&img, &pose, 1.0);
     assert!(a.cells.len() > 100);
