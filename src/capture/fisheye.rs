@@ -225,7 +225,6 @@ impl Lens {
     }
 }
 
-/// Checks the settings against an input of `w x h` and returns both lenses.
 /// Share of an 8-bit dual-fisheye image's pixels lying well outside both image
 /// circles (beyond [`OUTSIDE_RADII`] radii from each lens's centre) that hold
 /// image content (a channel above [`BLACK_CODE`]): a two-lens camera leaves
@@ -263,6 +262,7 @@ const OUTSIDE_RADII: f32 = 1.1;
 /// (sensor black level and compression noise).
 const BLACK_CODE: u8 = 48;
 
+/// Checks the settings against an input of `w x h` and returns both lenses.
 fn lenses(cfg: &DualFisheye, w: usize, h: usize) -> Result<(Lens, Lens)> {
     let bad = |m: String| Err(Error::Invalid(m));
     if !cfg.fov_deg.is_finite() || !(180.0..=360.0).contains(&cfg.fov_deg) {

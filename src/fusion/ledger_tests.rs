@@ -19,7 +19,6 @@ fn added_power(out: &HdrImage, lin: &HdrImage) -> f64 {
         .sum()
 }
 
-/// The ledger only reported, not enforced (`fusion.ledger=null`).
 /// A probe or frame at the origin, in world axes.
 fn at_origin() -> crate::scene::Pose {
     crate::scene::Pose {
@@ -28,6 +27,7 @@ fn at_origin() -> crate::scene::Pose {
     }
 }
 
+/// The ledger only reported, not enforced (`fusion.ledger=null`).
 fn ledger_off() -> FusionParams {
     FusionParams {
         ledger: None,

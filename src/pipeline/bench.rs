@@ -103,6 +103,9 @@ pub fn bench_scored(
     repeats: usize,
     score: bool,
 ) -> Result<BenchReport> {
+    if params.size.is_none() {
+        super::one_frame_size(scene)?;
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()

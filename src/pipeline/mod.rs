@@ -280,7 +280,7 @@ pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
 /// or exports mixed in one folder. Read from the files' headers before any
 /// frame is computed, so a refused run writes nothing. Fails naming the first
 /// frame that differs and the first frame.
-fn one_frame_size(scene: &Scene) -> Result<()> {
+pub(crate) fn one_frame_size(scene: &Scene) -> Result<()> {
     let mut first: Option<(&Path, (usize, usize))> = None;
     for f in &scene.frames {
         let d = io::sdr_dimensions(&f.sdr)?;
@@ -327,8 +327,10 @@ pub fn load_probe(
     let mut img = io::read_hdr(path)?;
     let repaired = img.repair_invalid();
     if let Some((w, h)) = size {
-        if img.width() > w || img.height() > h {
-            img = crate::sphere::resize(&img, w, h);
+        // Each side only ever shrinks.
+        let (tw, th) = (w.min(img.width()), h.min(img.height()));
+        if (tw, th) != (img.width(), img.height()) {
+            img = crate::sphere::resize(&img, tw, th);
         }
     }
     Ok((img, repaired))
@@ -458,10 +460,55 @@ fn white_point(scene: &Scene, frame: &Frame, params: &RunParams) -> f32 {
         / scene.frame_luminance_gain(frame)
 }
 
+/// The frames `run` read last, at the working size: a frame is read for
+/// itself and, as a witness, for the frame on either side, and with frames
+/// taken in walk order those reads come close together. Each is decoded and
+/// resampled once instead of three times (at 7776x3888 a resampled frame takes
+/// 91 MB and about half a second). Holds at most `cap` frames, the oldest
+/// dropped first; two workers missing the same frame at once both read it.
+struct FrameCache {
+    slots: Mutex<std::collections::VecDeque<(PathBuf, Arc<SdrImage>)>>,
+    cap: usize,
+}
+
+impl FrameCache {
+    fn new(cap: usize) -> Self {
+        FrameCache {
+            slots: Mutex::new(std::collections::VecDeque::new()),
+            cap: cap.max(1),
+        }
+    }
+
+    /// Frame `f` at `size`, from the cache or read (and kept).
+    fn get(&self, f: &Frame, size: Option<(usize, usize)>) -> Result<Arc<SdrImage>> {
+        if let Ok(slots) = self.slots.lock() {
+            if let Some((_, img)) = slots.iter().find(|(p, _)| *p == f.sdr) {
+                return Ok(img.clone());
+            }
+        }
+        let img = Arc::new(load_frame(f, size)?);
+        if let Ok(mut slots) = self.slots.lock() {
+            if !slots.iter().any(|(p, _)| *p == f.sdr) {
+                slots.push_back((f.sdr.clone(), img.clone()));
+                while slots.len() > self.cap {
+                    slots.pop_front();
+                }
+            }
+        }
+        Ok(img)
+    }
+}
+
 /// The witnesses of frame `i` at the working size, read from their codes
 /// (the frames' radiance per code, as [`linearize`] gives it); a witness that
-/// cannot be read is left out (its own frame reports the error).
-fn load_witnesses(scene: &Scene, i: usize, params: &RunParams) -> Vec<Witness> {
+/// cannot be read is left out (its own frame reports the error). `load` reads
+/// a frame at the working size (through `run`'s [`FrameCache`]).
+fn load_witnesses(
+    scene: &Scene,
+    i: usize,
+    params: &RunParams,
+    load: &dyn Fn(&Frame) -> Result<Arc<SdrImage>>,
+) -> Vec<Witness> {
     let frames = witness_frames(scene, i, params);
     if frames.is_empty() {
         return Vec::new();
@@ -470,7 +517,7 @@ fn load_witnesses(scene: &Scene, i: usize, params: &RunParams) -> Vec<Witness> {
     frames
         .into_iter()
         .filter_map(|n| {
-            let sdr = load_frame(n, params.size).ok()?;
+            let sdr = load(n).ok()?;
             let g = scene.frame_luminance_gain(n);
             let radiance = scene.response.decode_lut().map(|v| v / g);
             Some(Witness::from_codes(&sdr, &radiance, white, n.pose))
@@ -604,8 +651,16 @@ fn run_named(
     };
     let done = AtomicUsize::new(0);
     let total = (0..scene.frames.len()).filter(|&i| mine(i)).count();
+    // Fewer frames to compute than workers (one frame of a large panorama):
+    // the idle threads help compress.
+    let pending = inputs
+        .iter()
+        .enumerate()
+        .filter(|(i, (_, _, kept))| kept.is_none() && mine(*i))
+        .count();
     let exr = io::ExrWriteOptions {
         compression: params.exr_compression,
+        parallel: Some(pending < rayon::current_num_threads()),
         ..Default::default()
     };
     let pairs = LightPairs::default();
@@ -614,12 +669,14 @@ fn run_named(
         pairs: &pairs,
     };
     let noted: Mutex<Vec<String>> = Mutex::new(Vec::new());
+    // A frame and its two witnesses per worker in flight, neighbours sharing.
+    let frames = FrameCache::new(2 * rayon::current_num_threads());
     let compute = |i: usize, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
         let frame = &scene.frames[i];
         let probe_meta = &scene.probes[used[0]];
         let out = out_dir.join(format!("{}.exr", frame.id));
         let side = out_dir.join(format!("{}.json", frame.id));
-        let sdr = load_frame(frame, params.size)?;
+        let sdr = frames.get(frame, params.size)?;
         let mut repaired = 0;
         for &u in used {
             repaired += get_probe(u)?.1;
@@ -635,7 +692,7 @@ fn run_named(
         note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
         let t = Instant::now();
         let lin = linearize(&sdr, scene, frame);
-        let witnesses = load_witnesses(scene, i, params);
+        let witnesses = load_witnesses(scene, i, params, &|n| frames.get(n, params.size));
         let (img, warp_report, flow_report, fusion_report) = predict_held(
             scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
         )?;
@@ -883,7 +940,11 @@ pub fn predict_frame(
         .frames
         .iter()
         .position(|f| f.id == frame.id)
-        .map(|i| load_witnesses(scene, i, params))
+        .map(|i| {
+            load_witnesses(scene, i, params, &|n| {
+                load_frame(n, params.size).map(Arc::new)
+            })
+        })
         .unwrap_or_default();
     predict_held(
         scene,

@@ -213,7 +213,8 @@ fn stitch_frames(files: &[PathBuf], fov_deg: f32, dir: &Path) -> Result<Vec<Path
                 return Err(layout(format!(
                     "{:.0}% of the pixels outside both lens circles hold image content, \
                      where a two-lens camera leaves them black; if the frames are already \
-                     equirectangular, set frames.layout = \"equirect\"",
+                     equirectangular, set frames.layout = \"equirect\" (circles wider than \
+                     the image is high are not supported)",
                     100.0 * share
                 )));
             }

@@ -76,6 +76,11 @@ pub struct ExrWriteOptions {
     pub on_overflow: Overflow,
     /// Lossless compression.
     pub compression: ExrCompression,
+    /// Compress on the exr crate's own pool of threads (`Some(true)`) or on the
+    /// caller's (`Some(false)`). `None`: on the pool for images of a million
+    /// pixels or more written outside a rayon worker, else on the caller's
+    /// thread (a worker's siblings are busy with frames of their own).
+    pub parallel: Option<bool>,
 }
 
 /// Which channels of the chosen layer become RGB.
@@ -351,11 +356,15 @@ fn encode_to(
     };
     let attributes = ::exr::meta::header::LayerAttributes::default();
     // The exr crate compresses on a thread pool of its own, as many threads as
-    // cores. Inside a worker of ours (`run` writes each frame on the worker
-    // that computed it, one frame per thread) that would oversubscribe the
-    // cores and ignore `--threads`: there the image is compressed on the
-    // worker's own thread.
-    let parallel = rayon::current_thread_index().is_none() && rayon::current_num_threads() > 1;
+    // cores, built for each image. Inside a worker of ours (`run` writes each
+    // frame on the worker that computed it, one frame per thread) that would
+    // oversubscribe the cores and ignore `--threads`, and for a small image
+    // building the pool costs more than it saves.
+    let parallel = opts.parallel.unwrap_or_else(|| {
+        rayon::current_thread_index().is_none()
+            && rayon::current_num_threads() > 1
+            && w * h >= 1 << 20
+    });
     let result = if opts.half {
         let (count, max) = img
             .data()

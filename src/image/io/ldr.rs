@@ -55,24 +55,6 @@ pub fn decode(bytes: &[u8], name: &Path, format: Format, limits: &Limits) -> Res
     })
 }
 
-/// Width and height an 8-bit image file (PNG or JPEG) declares, read from its
-/// header only (a walk's frames are compared before any is decoded).
-pub fn dimensions(path: &Path) -> Result<(usize, usize)> {
-    guard_panic(path, "image header", || {
-        let reader = image::ImageReader::open(path)
-            .map_err(|e| Error::io(path, e))?
-            .with_guessed_format()
-            .map_err(|e| Error::io(path, e))?;
-        if reader.format().is_none() {
-            return Err(Error::format(path, "not a PNG or JPEG image"));
-        }
-        let (w, h) = reader
-            .into_dimensions()
-            .map_err(|e| Error::format(path, format!("cannot read the image header: {e}")))?;
-        Ok((w as usize, h as usize))
-    })
-}
-
 /// Walks PNG chunks from the signature to `IEND`; any chunk running past the
 /// end of the data means the file is truncated.
 fn check_png_structure(b: &[u8]) -> std::result::Result<(), String> {

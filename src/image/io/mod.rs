@@ -13,9 +13,7 @@ pub mod pfm;
 pub mod rgbe;
 
 pub use self::exr::{ExrCompression, ExrWriteOptions, Overflow};
-pub use self::ldr::{
-    dimensions as sdr_dimensions, linear_to_sdr, sdr_to_linear, sdr_to_linear_rgb,
-};
+pub use self::ldr::{linear_to_sdr, sdr_to_linear, sdr_to_linear_rgb};
 
 use crate::error::{Error, Result};
 use crate::image::{HdrImage, SdrImage};
@@ -167,6 +165,79 @@ pub fn read_sdr_with(path: &Path, limits: &Limits) -> Result<SdrImage> {
     decode_sdr(&bytes, path, limits)
 }
 
+/// Width and height an 8-bit image file (PNG or JPEG) declares, from its
+/// first [`HEADER_BYTES`] (a JPEG's frame header follows its metadata; a file
+/// whose metadata runs past them is read whole). A walk's frames are compared
+/// this way before any is decoded. Fails as [`read_sdr`] does on a file that
+/// is no 8-bit image.
+pub fn sdr_dimensions(path: &Path) -> Result<(usize, usize)> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(HEADER_BYTES).read_to_end(&mut head))
+        .map_err(|e| Error::io(path, e))?;
+    let found = match detect_or_err(&head, path)? {
+        Format::Png => png_size(&head),
+        Format::Jpeg => jpeg_size(&head),
+        f => {
+            return Err(Error::format(
+                path,
+                format!(
+                    "is an HDR {} image, not 8-bit; read it with read_hdr",
+                    f.name()
+                ),
+            ))
+        }
+    };
+    match found {
+        Some(d) => Ok(d),
+        None => {
+            let img = read_sdr(path)?;
+            Ok((img.width(), img.height()))
+        }
+    }
+}
+
+/// How much of a file [`sdr_dimensions`] reads first.
+const HEADER_BYTES: u64 = 64 << 10;
+
+/// A PNG's size from its IHDR chunk, which must come first.
+fn png_size(b: &[u8]) -> Option<(usize, usize)> {
+    if b.get(12..16)? != b"IHDR" {
+        return None;
+    }
+    let be = |o: usize| -> Option<usize> {
+        Some(u32::from_be_bytes(b.get(o..o + 4)?.try_into().ok()?) as usize)
+    };
+    Some((be(16)?, be(20)?))
+}
+
+/// A JPEG's size from its frame header (SOF0-SOF15 but DHT, JPG and DAC),
+/// walking the marker segments from the start.
+fn jpeg_size(b: &[u8]) -> Option<(usize, usize)> {
+    let mut pos = 2;
+    loop {
+        // Fill bytes (0xFF) may pad a marker.
+        while *b.get(pos)? == 0xFF && *b.get(pos + 1)? == 0xFF {
+            pos += 1;
+        }
+        if *b.get(pos)? != 0xFF {
+            return None;
+        }
+        let marker = *b.get(pos + 1)?;
+        let len = u16::from_be_bytes([*b.get(pos + 2)?, *b.get(pos + 3)?]) as usize;
+        if (0xC0..=0xCF).contains(&marker) && !matches!(marker, 0xC4 | 0xC8 | 0xCC) {
+            let h = u16::from_be_bytes([*b.get(pos + 5)?, *b.get(pos + 6)?]) as usize;
+            let w = u16::from_be_bytes([*b.get(pos + 7)?, *b.get(pos + 8)?]) as usize;
+            return Some((w, h));
+        }
+        if marker == 0xD9 || marker == 0xDA || len < 2 {
+            return None;
+        }
+        pos += 2 + len;
+    }
+}
+
 /// Decodes an 8-bit PNG or JPEG held in memory (gray and alpha become RGB).
 pub fn decode_sdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<SdrImage> {
     match detect_or_err(bytes, name)? {
@@ -314,6 +385,34 @@ pub(crate) fn guard_panic<T>(name: &Path, what: &str, f: impl FnOnce() -> Result
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_images_size_is_read_from_its_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = SdrImage::from_vec(37, 21, (0..37 * 21 * 3).map(|i| (i % 251) as u8).collect())
+            .unwrap();
+        let png = dir.path().join("a.png");
+        let jpg = dir.path().join("a.jpg");
+        ldr::write_png(&png, &img).unwrap();
+        ldr::write_jpeg(&jpg, &img, 90).unwrap();
+        assert_eq!(sdr_dimensions(&png).unwrap(), (37, 21));
+        assert_eq!(sdr_dimensions(&jpg).unwrap(), (37, 21));
+        // From the header alone: the data cut off after the first kilobyte.
+        let bytes = std::fs::read(&jpg).unwrap();
+        let cut = dir.path().join("cut.jpg");
+        std::fs::write(&cut, &bytes[..bytes.len().min(1024)]).unwrap();
+        assert_eq!(jpeg_size(&std::fs::read(&cut).unwrap()), Some((37, 21)));
+        // An HDR file is named as one, as read_sdr does.
+        let exr = dir.path().join("a.exr");
+        write_hdr(&exr, &HdrImage::new(4, 2)).unwrap();
+        let e = sdr_dimensions(&exr).unwrap_err().to_string();
+        assert!(e.contains("a.exr") && e.contains("not 8-bit"), "{e}");
+        // Junk names its first bytes.
+        let junk = dir.path().join("junk.txt");
+        std::fs::write(&junk, b"hello").unwrap();
+        let e = sdr_dimensions(&junk).unwrap_err().to_string();
+        assert!(e.contains("junk.txt") && e.contains("unrecognised"), "{e}");
+    }
 
     #[test]
     fn sniff_prefers_magic_over_extension() {
