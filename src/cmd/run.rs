@@ -56,7 +56,8 @@ pub struct RunArgs {
     /// 4096 pixels wide, where it is both smaller and faster to write than ZIP
     /// (kitchen at 512x256), and ZIP from there, the smallest at 7776x3888 (a
     /// quarter of the raw size, where PIZ writes 3x faster at 1.2x ZIP's
-    /// size); none is the fastest.
+    /// size); none when a trial band shows the frame would not shrink below
+    /// 85% (the warp and flow methods' outputs); none is the fastest.
     #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
     pub exr_compression: lumiprobe::image::io::ExrCompression,
     /// A setting without a flag of its own, as KEY=VALUE (a path into the

@@ -52,7 +52,9 @@ pub enum ExrCompression {
     /// PIZ for panoramas under 4096 pixels wide, ZIP from there: at 512x256
     /// PIZ writes a kitchen fusion run's 20 frames in 1.35 s against 1.63-1.78
     /// s and 20 MB against 25 MB; at 7776x3888 ZIP files are the smaller (PIZ
-    /// 1.2 times) (docs/speed.md).
+    /// 1.2 times) (docs/speed.md). Uncompressed when a trial band across the
+    /// middle of the image does not shrink below 85% (float data resampled
+    /// from float data; half floats are always compressed).
     #[default]
     Auto,
     /// Deflate over 16 scanlines (OpenEXR's ZIP): smallest for smooth images.
@@ -335,6 +337,38 @@ pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec
 }
 
 /// [`encode`] into any seekable writer.
+/// Whether `codec` shrinks `img` enough to be worth its time: a band of
+/// [`TRIAL_ROWS`] rows across the middle (the horizon, where panoramas are
+/// busiest) is compressed in memory and must come out under
+/// [`TRIAL_RATIO`] of its raw size. Float panoramas resampled from float data
+/// (the warp and flow methods' outputs) fill every mantissa bit and barely
+/// compress: a warp run's 20 kitchen frames are 28.5 MB as PIZ against 31.7 MB
+/// raw, and PIZ took half of the run's time. Frames that keep the SDR frame's
+/// values (fusion's) compress to 60%.
+fn pays(img: &HdrImage, name: &Path, codec: ExrCompression) -> bool {
+    let (w, h) = (img.width(), img.height());
+    let rows = TRIAL_ROWS.min(h);
+    let y0 = (h - rows) / 2;
+    let band = HdrImage::from_fn(w, rows, |x, y| img.get(x, y0 + y));
+    let opts = ExrWriteOptions {
+        compression: codec,
+        parallel: Some(false),
+        ..Default::default()
+    };
+    let mut buf = std::io::Cursor::new(Vec::new());
+    if encode_to(&band, name, &opts, &mut buf).is_err() {
+        return true;
+    }
+    (buf.get_ref().len() as f64) < TRIAL_RATIO * (w * rows * 12) as f64
+}
+
+/// Rows of [`pays`]'s trial band (PIZ and ZIP work on blocks of 32 and 16).
+const TRIAL_ROWS: usize = 32;
+
+/// Largest compressed share of the raw size at which [`ExrCompression::Auto`]
+/// still compresses.
+const TRIAL_RATIO: f64 = 0.85;
+
 fn encode_to(
     img: &HdrImage,
     name: &Path,
@@ -344,10 +378,20 @@ fn encode_to(
     let (w, h) = (img.width(), img.height());
     check_nonempty(name, w, h)?;
     check_finite(name, img)?;
+    // Auto: the codec for the width, if a trial band shows it pays.
+    let auto = if w < AUTO_ZIP_WIDTH {
+        ExrCompression::Piz
+    } else {
+        ExrCompression::Zip
+    };
+    let chosen = match opts.compression {
+        ExrCompression::Auto if !opts.half && !pays(img, name, auto) => ExrCompression::None,
+        ExrCompression::Auto => auto,
+        c => c,
+    };
     let encoding = ::exr::image::Encoding {
-        compression: match opts.compression {
-            ExrCompression::Auto if w < AUTO_ZIP_WIDTH => ::exr::compression::Compression::PIZ,
-            ExrCompression::Auto | ExrCompression::Zip => ::exr::compression::Compression::ZIP16,
+        compression: match chosen {
+            ExrCompression::Zip | ExrCompression::Auto => ::exr::compression::Compression::ZIP16,
             ExrCompression::Piz => ::exr::compression::Compression::PIZ,
             ExrCompression::None => ::exr::compression::Compression::Uncompressed,
         },
@@ -488,17 +532,34 @@ mod tests {
     }
 
     #[test]
-    fn auto_writes_piz_under_its_width_and_zip_from_it() {
-        let written = |w: usize| {
-            let img = HdrImage::from_fn(w, 2, |x, y| [x as f32, y as f32, 1.0]);
-            let b = encode(&img, Path::new("a.exr"), &ExrWriteOptions::default()).unwrap();
+    fn auto_writes_piz_under_its_width_and_zip_from_it_and_nothing_that_does_not_shrink() {
+        let written = |img: &HdrImage| {
+            let b = encode(img, Path::new("a.exr"), &ExrWriteOptions::default()).unwrap();
             let meta =
                 ::exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&b), false).unwrap();
+            assert_eq!(
+                decode(&b, Path::new("a.exr"), &Limits::default()).unwrap(),
+                *img
+            );
             meta.headers[0].compression
         };
+        // Few distinct values (as an SDR frame's LUT gives): compressed.
+        let smooth = |w: usize| HdrImage::from_fn(w, 8, |x, y| [(x % 7) as f32, y as f32, 1.0]);
         use ::exr::compression::Compression;
-        assert_eq!(written(AUTO_ZIP_WIDTH - 1), Compression::PIZ);
-        assert_eq!(written(AUTO_ZIP_WIDTH), Compression::ZIP16);
+        assert_eq!(written(&smooth(AUTO_ZIP_WIDTH - 1)), Compression::PIZ);
+        assert_eq!(written(&smooth(AUTO_ZIP_WIDTH)), Compression::ZIP16);
+        // Every mantissa bit in use (float resampled from float): raw.
+        let mut state = 0x9e3779b97f4a7c15u64;
+        let noisy = HdrImage::from_fn(512, 64, |_, _| {
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                0.2 + (state >> 40) as f32 / (1u64 << 24) as f32
+            };
+            [next(), next(), next()]
+        });
+        assert_eq!(written(&noisy), Compression::Uncompressed);
     }
 
     #[test]
