@@ -336,7 +336,6 @@ pub fn encode(img: &HdrImage, name: &Path, opts: &ExrWriteOptions) -> Result<Vec
     Ok(out.into_inner())
 }
 
-/// [`encode`] into any seekable writer.
 /// Whether `codec` shrinks `img` enough to be worth its time: a band of
 /// [`TRIAL_ROWS`] rows across the middle (the horizon, where panoramas are
 /// busiest) is compressed in memory and must come out under
@@ -369,6 +368,7 @@ const TRIAL_ROWS: usize = 32;
 /// still compresses.
 const TRIAL_RATIO: f64 = 0.85;
 
+/// [`encode`] into any seekable writer.
 fn encode_to(
     img: &HdrImage,
     name: &Path,

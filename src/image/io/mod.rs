@@ -172,30 +172,30 @@ pub fn read_sdr_with(path: &Path, limits: &Limits) -> Result<SdrImage> {
 /// is no 8-bit image.
 pub fn sdr_dimensions(path: &Path) -> Result<(usize, usize)> {
     use std::io::Read;
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut head = Vec::new();
-    std::fs::File::open(path)
-        .and_then(|f| f.take(HEADER_BYTES).read_to_end(&mut head))
-        .map_err(|e| Error::io(path, e))?;
-    let found = match detect_or_err(&head, path)? {
-        Format::Png => png_size(&head),
-        Format::Jpeg => jpeg_size(&head),
-        f => {
-            return Err(Error::format(
-                path,
-                format!(
-                    "is an HDR {} image, not 8-bit; read it with read_hdr",
-                    f.name()
-                ),
-            ))
+    // The first 4 KiB hold a camera JPEG's frame header unless its metadata is
+    // large; then up to HEADER_BYTES; then the whole file.
+    for limit in [4 << 10, HEADER_BYTES] {
+        let want = limit - head.len() as u64;
+        let got = (&mut file)
+            .take(want)
+            .read_to_end(&mut head)
+            .map_err(|e| Error::io(path, e))?;
+        let found = match detect_or_err(&head, path)? {
+            Format::Png => png_size(&head),
+            Format::Jpeg => jpeg_size(&head),
+            f => return Err(not_8bit(path, f)),
+        };
+        if let Some(d) = found {
+            return Ok(d);
         }
-    };
-    match found {
-        Some(d) => Ok(d),
-        None => {
-            let img = read_sdr(path)?;
-            Ok((img.width(), img.height()))
+        if (got as u64) < want {
+            break;
         }
     }
+    let img = read_sdr(path)?;
+    Ok((img.width(), img.height()))
 }
 
 /// How much of a file [`sdr_dimensions`] reads first.
@@ -242,17 +242,22 @@ fn jpeg_size(b: &[u8]) -> Option<(usize, usize)> {
 pub fn decode_sdr(bytes: &[u8], name: &Path, limits: &Limits) -> Result<SdrImage> {
     match detect_or_err(bytes, name)? {
         f @ (Format::Png | Format::Jpeg) => ldr::decode(bytes, name, f, limits),
-        f => Err(Error::format(
-            name,
-            format!(
-                "is an HDR {} image, not 8-bit; read it with read_hdr",
-                f.name()
-            ),
-        )),
+        f => Err(not_8bit(name, f)),
     }
 }
 
-/// Writes an HDR image atomically; `.exr` (float32, ZIP), `.hdr`/`.pic` (RLE RGBE)
+/// The error for an HDR file where an 8-bit image was expected.
+fn not_8bit(name: &Path, f: Format) -> Error {
+    Error::format(
+        name,
+        format!(
+            "is an HDR {} image, not 8-bit; read it with read_hdr",
+            f.name()
+        ),
+    )
+}
+
+/// Writes an HDR image atomically; `.exr` (float32, [`ExrCompression::Auto`]), `.hdr`/`.pic` (RLE RGBE)
 /// or `.pfm` (little-endian RGB) by extension.
 pub fn write_hdr(path: &Path, img: &HdrImage) -> Result<()> {
     write_hdr_with(path, img, &ExrWriteOptions::default())
