@@ -375,11 +375,36 @@ fn promote_under_discs(
 /// A promoted pixel's channels that are measurements (below the bleed code) stay
 /// as measured. Only promoted pixels have such channels: the other fully clipped
 /// pixels clipped in every channel.
-fn keep_measured(frame: &Measured, v: &mut [f32; 3], i: usize) {
+///
+/// With `bound` ([`FusionParams::measured_bound`]) a measured channel also
+/// bounds the light written there: it recorded less than the clip radiance
+/// `white`, so a light of `v`'s colour that would put more than that in it is
+/// not at this pixel at that strength, and `v` is scaled down until no measured
+/// channel passes `white` (never below what the frame measured). A lamp's
+/// mirror image that a probe sees on a floor the frame also sees, unlit, must
+/// not land there with the lamp's colour: the frame's blue said otherwise.
+fn keep_measured(frame: &Measured, v: &mut [f32; 3], i: usize, bound: bool) {
     let w = frame.codes.width();
     let s = frame.radiance.get(i % w, i / w);
+    let codes = &frame.codes.data()[3 * i..3 * i + 3];
+    // A decoded channel at the top code may have been clamped by the decoder:
+    // the pixel's luma may then be saturated, and its other channels are the
+    // chroma block's spill (JPEG keeps chroma per 2x2 pixels), not measurements
+    // of this pixel. With no channel there, the luma is unsaturated and every
+    // channel below the bleed code measured this pixel.
+    if bound && codes.iter().all(|&c| c < u8::MAX) {
+        let g = (0..3)
+            .filter(|&k| !frame.censor.bleeds(codes[k]) && v[k] > frame.white)
+            .map(|k| frame.white / v[k])
+            .fold(1.0f32, f32::min);
+        if g < 1.0 {
+            for k in 0..3 {
+                v[k] = (v[k] * g).max(s[k]);
+            }
+        }
+    }
     for k in 0..3 {
-        if !frame.censor.bleeds(frame.codes.data()[3 * i + k]) {
+        if !frame.censor.bleeds(codes[k]) {
             v[k] = s[k];
         }
     }
@@ -506,7 +531,7 @@ fn fill_full(
             for k in 0..3 {
                 v[k] = (colour[k] * target / lc).max(s[k]);
             }
-            keep_measured(frame, &mut v, i);
+            keep_measured(frame, &mut v, i, p.measured_bound);
             out.set(x, y, v);
             continue;
         }
@@ -548,13 +573,13 @@ fn fill_full(
                 v = m;
             }
         }
-        keep_measured(frame, &mut v, i);
+        keep_measured(frame, &mut v, i, p.measured_bound);
         out.set(x, y, v);
         regions[o].fill.missed_placed +=
             (luminance(v) as f64 - white as f64).max(0.0) * px.solid_angle(i);
     }
     if p.fill_to_peak {
-        top_up_carried(frame, px, regions, &full_radiance, out);
+        top_up_carried(frame, px, regions, &full_radiance, p.measured_bound, out);
     }
 }
 
@@ -569,6 +594,7 @@ fn top_up_carried(
     px: &Pixels,
     regions: &mut [Region],
     full_radiance: &HashMap<usize, [f32; 3]>,
+    bound: bool,
     out: &mut HdrImage,
 ) {
     let white = frame.white as f64;
@@ -607,7 +633,7 @@ fn top_up_carried(
         for k in 0..3 {
             v[k] = ((c[k] as f64 * target / lc) as f32).max(s[k]);
         }
-        keep_measured(frame, &mut v, i);
+        keep_measured(frame, &mut v, i, bound);
         out.set(x, y, v);
     }
 }

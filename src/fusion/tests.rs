@@ -354,6 +354,55 @@ fn a_light_with_no_fully_clipped_pixel_is_not_lost() {
     assert!((po - pe).abs() / pe < 0.05, "power {po} vs {pe}");
 }
 
+/// The power a white lamp of radiance 300 in the estimate lands on a 3x3
+/// region coded `code` (no channel fully clipped), with or without
+/// `measured_bound`, and the estimate's power there.
+fn lamp_on_coded_region(code: [u8; 3], linear: [f32; 3], measured_bound: bool) -> (f64, f64) {
+    let (w, h) = (128, 64);
+    let mut codes = vec![100u8; w * h * 3];
+    let mut lin = HdrImage::from_fn(w, h, |_, _| [0.2, 0.2, 0.2]);
+    for y in 30..33 {
+        for x in 60..63 {
+            codes[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&code);
+            lin.set(x, y, linear);
+        }
+    }
+    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (60..63).contains(&x) && (30..33).contains(&y) {
+            [300.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let p = FusionParams {
+        measured_bound,
+        ..Default::default()
+    };
+    let (out, _) = fuse(&Measured::new(&sdr, &lin, 1.0), &est, &p).unwrap();
+    (power_above(&out, 1.0), power_above(&est, 1.0))
+}
+
+#[test]
+fn a_white_light_is_not_written_where_the_frame_measured_its_blue_below_white() {
+    // A floor where a probe saw a lamp's mirror image, which the frame sees
+    // unlit: red clipped, blue measured at 0.3 of white. A white light there
+    // would have clipped the blue too.
+    let floor = ([252, 240, 150], [1.0, 0.9, 0.3]);
+    let (bounded, est) = lamp_on_coded_region(floor.0, floor.1, true);
+    assert!(bounded < 0.01 * est, "bounded: {bounded} of {est}");
+    // Without the bound, the estimate's light lands there (the test can fail).
+    let (free, _) = lamp_on_coded_region(floor.0, floor.1, false);
+    assert!(free > 0.5 * est, "unbounded: {free} of {est}");
+    // A pixel with a channel at the top code may be a saturated luma whose
+    // blue is its chroma block's: the bound leaves the light as it was (all
+    // but the blue the frame measured).
+    let lamp = ([255, 255, 150], [1.0, 1.0, 0.3]);
+    let (kept, est) = lamp_on_coded_region(lamp.0, lamp.1, true);
+    assert_eq!(kept, lamp_on_coded_region(lamp.0, lamp.1, false).0);
+    assert!(kept > 0.9 * est, "lamp: {kept} of {est}");
+}
+
 #[test]
 fn no_clipping_means_the_calibrated_frame() {
     let (w, h) = (64, 32);
