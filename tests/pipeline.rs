@@ -155,3 +155,43 @@ fn probes_are_resampled_down_to_a_working_size_but_never_up() {
         assert_eq!(img.count_invalid(), 0);
     }
 }
+
+#[test]
+fn a_memory_limit_runs_fewer_frames_at_once_with_the_same_outputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let s = scene(&tmp.path().join("scene"));
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let with = |limit: Option<u64>, out: &Path| {
+        let params = RunParams {
+            method: lumiprobe::pipeline::Method::Fusion,
+            memory_limit: limit,
+            ..RunParams::default()
+        };
+        pool.install(|| run(&s, out, &params, &|_, _| {})).unwrap()
+    };
+    let (free, tight) = (tmp.path().join("free"), tmp.path().join("tight"));
+    let r = with(Some(1 << 40), &free);
+    assert!(
+        !r.warnings.iter().any(|w| w.contains("memory limit")),
+        "{:?}",
+        r.warnings
+    );
+    // A limit no frame fits: one frame at a time, said in the report.
+    let r = with(Some(1), &tight);
+    assert!(
+        r.warnings
+            .iter()
+            .any(|w| w.contains("memory limit") && w.contains("--size")),
+        "{:?}",
+        r.warnings
+    );
+    for f in &s.frames {
+        let name = format!("{}.exr", f.id);
+        let a = std::fs::read(free.join(&name)).unwrap();
+        let b = std::fs::read(tight.join(&name)).unwrap();
+        assert!(a == b, "{} differs under the memory limit", f.id);
+    }
+}

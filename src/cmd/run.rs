@@ -52,19 +52,22 @@ pub struct RunArgs {
     /// docs/consumer-video.md)
     #[arg(long, requires = "calibrate", hide = true)]
     pub vignetting: bool,
-    /// Compression of the per-frame EXR files. By default (`auto`) PIZ under
+    /// Compression of the per-frame EXR files: auto, zip, piz or none. By default (`auto`) PIZ under
     /// 4096 pixels wide, where it is both smaller and faster to write than ZIP
     /// (kitchen at 512x256), and ZIP from there, the smallest at 7776x3888 (a
     /// quarter of the raw size, where PIZ writes 3x faster at 1.2x ZIP's
     /// size); none when a trial band shows the frame would not shrink below
     /// 85% (the warp and flow methods' outputs); none is the fastest.
-    #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression)]
+    #[arg(long, value_enum, default_value_t = lumiprobe::pipeline::RunParams::default().exr_compression, hide_possible_values = true)]
     pub exr_compression: lumiprobe::image::io::ExrCompression,
     /// A setting without a flag of its own, as KEY=VALUE (a path into the
     /// settings of `report.json`), e.g. `fusion.walk.mode=two_sided` or
     /// `fusion.ledger=full`; repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Memory (GiB) for the frames computed at once; fewer run at once beyond it, with the same outputs [default: 3/4 of the free memory]
+    #[arg(long, value_name = "GIB")]
+    pub memory_limit: Option<f64>,
     #[command(flatten)]
     pub warp: WarpOpts,
     #[command(flatten)]
@@ -85,9 +88,19 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
         dry_run,
         shard,
         set,
+        memory_limit,
         warp,
         flow,
     } = a;
+    let memory_limit = match memory_limit {
+        None => None,
+        Some(g) if g.is_finite() && g > 0.0 => Some((g * (1u64 << 30) as f64) as u64),
+        Some(g) => {
+            return Err(Error::Invalid(format!(
+                "--memory-limit {g}: expected a positive number of GiB, e.g. 4"
+            )))
+        }
+    };
     if vignetting && frame_exposure == FrameExposure::Off {
         return Err(Error::Invalid(
             "--vignetting is fitted with each frame's own exposure: give --frame-exposure on (or auto)"
@@ -178,6 +191,7 @@ pub fn run(a: RunArgs, quiet: bool) -> Result<()> {
     }
     let mut params = run_params(method, size, &warp, &flow).with_settings(&set)?;
     params.exr_compression = exr_compression;
+    params.memory_limit = memory_limit;
     if dry_run {
         let pending = pipeline::pending_frames(&scene, &out, &params)?;
         println!(

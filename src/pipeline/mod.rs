@@ -8,6 +8,7 @@ pub mod corpus;
 pub mod demo;
 pub mod evaluate;
 pub mod export;
+pub mod memory;
 pub mod plan;
 pub mod probe_set;
 pub mod render_eval;
@@ -60,6 +61,16 @@ impl Method {
             Method::Flow | Method::Hybrid | Method::Fusion => 2,
         }
     }
+
+    /// The method's name as the command line spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Warp => "warp",
+            Method::Flow => "flow",
+            Method::Hybrid => "hybrid",
+            Method::Fusion => "fusion",
+        }
+    }
 }
 
 /// Settings of a run.
@@ -81,6 +92,11 @@ pub struct RunParams {
     /// it changes the file, not the radiance.
     #[serde(skip)]
     pub exr_compression: crate::image::io::ExrCompression,
+    /// Most memory (bytes) the frames in flight and the probes may take
+    /// ([`memory`]); `None`: [`memory::default_limit`]. Not part of a frame's
+    /// fingerprint: it changes how many frames run at once, not their output.
+    #[serde(skip)]
+    pub memory_limit: Option<u64>,
 }
 
 impl RunParams {
@@ -130,6 +146,7 @@ impl RunParams {
         let mut out: RunParams =
             serde_json::from_value(tree).map_err(|e| Error::Invalid(format!("--set: {e}")))?;
         out.exr_compression = self.exr_compression;
+        out.memory_limit = self.memory_limit;
         Ok(out)
     }
 }
@@ -144,6 +161,7 @@ impl Default for RunParams {
             fusion: FusionParams::default(),
             fusion_base: Method::Flow,
             exr_compression: Default::default(),
+            memory_limit: None,
         }
     }
 }
@@ -280,7 +298,7 @@ pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
 /// or exports mixed in one folder. Read from the files' headers before any
 /// frame is computed, so a refused run writes nothing. Fails naming the first
 /// frame that differs and the first frame.
-pub(crate) fn one_frame_size(scene: &Scene) -> Result<()> {
+pub(crate) fn one_frame_size(scene: &Scene) -> Result<(usize, usize)> {
     let mut first: Option<(&Path, (usize, usize))> = None;
     for f in &scene.frames {
         let d = io::sdr_dimensions(&f.sdr)?;
@@ -302,7 +320,7 @@ pub(crate) fn one_frame_size(scene: &Scene) -> Result<()> {
             Some(_) => {}
         }
     }
-    Ok(())
+    Ok(first.map_or((0, 0), |(_, d)| d))
 }
 
 /// Reads a probe's HDR panorama, repairs invalid samples and resamples it down
@@ -555,6 +573,43 @@ pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Resu
         .collect())
 }
 
+/// How many frames `run` computes at once ([`memory::plan`]): the probes it
+/// will load (those `remaining` frames use, each at most the working size
+/// `frame`, its own size read from its header where it is an OpenEXR file),
+/// and frames of `frame` pixels.
+fn memory_plan(
+    scene: &Scene,
+    params: &RunParams,
+    remaining: &[AtomicUsize],
+    (fw, fh): (usize, usize),
+    threads: usize,
+    pending: usize,
+) -> memory::Plan {
+    let probes_px: u64 = scene
+        .probes
+        .iter()
+        .zip(remaining)
+        .filter(|(_, n)| n.load(Ordering::SeqCst) > 0)
+        .map(|(p, _)| {
+            let (w, h) = p
+                .hdr
+                .as_deref()
+                .and_then(io::hdr_size_hint)
+                .map_or((fw, fh), |(w, h)| (w.min(fw), h.min(fh)));
+            (w * h) as u64
+        })
+        .sum();
+    let limit = params.memory_limit.unwrap_or_else(memory::default_limit);
+    memory::plan(
+        params.method,
+        (fw * fh) as u64,
+        probes_px,
+        threads,
+        pending,
+        limit,
+    )
+}
+
 /// Runs the configured method over every frame of `scene`, writing
 /// `out_dir/<frame id>.exr`, a sidecar `<frame id>.json` per frame and
 /// `out_dir/report.json`. Frames whose outputs match the current inputs and
@@ -581,9 +636,10 @@ fn run_named(
     // sequence needs every frame.
     let mine = |i: usize| shard.map_or(true, |(k, c)| i % c == k);
     let whole_walk = shard.map_or(true, |(_, c)| c == 1);
-    if params.size.is_none() {
-        one_frame_size(scene)?;
-    }
+    let (fw, fh) = match params.size {
+        Some(s) => s,
+        None => one_frame_size(scene)?,
+    };
     use rayon::prelude::*;
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     crate::fsutil::remove_stale_temps(out_dir);
@@ -658,9 +714,12 @@ fn run_named(
         .enumerate()
         .filter(|(i, (_, _, kept))| kept.is_none() && mine(*i))
         .count();
+    let threads = rayon::current_num_threads();
+    let mem = memory_plan(scene, params, &remaining, (fw, fh), threads, pending);
+    let workers = mem.workers;
     let exr = io::ExrWriteOptions {
         compression: params.exr_compression,
-        parallel: Some(pending < rayon::current_num_threads()),
+        parallel: Some(pending.min(workers) < threads),
         ..Default::default()
     };
     let pairs = LightPairs::default();
@@ -668,9 +727,9 @@ fn run_named(
         get: &get_probe,
         pairs: &pairs,
     };
-    let noted: Mutex<Vec<String>> = Mutex::new(Vec::new());
+    let noted: Mutex<Vec<String>> = Mutex::new(mem.note.into_iter().collect());
     // A frame and its two witnesses per worker in flight, neighbours sharing.
-    let frames = FrameCache::new(2 * rayon::current_num_threads());
+    let frames = FrameCache::new(2 * workers);
     let compute = |i: usize, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
         let frame = &scene.frames[i];
         let probe_meta = &scene.probes[used[0]];
@@ -720,7 +779,6 @@ fn run_named(
     let next = AtomicUsize::new(0);
     let results: Vec<Mutex<Option<Result<(FrameRecord, bool)>>>> =
         scene.frames.iter().map(|_| Mutex::new(None)).collect();
-    let workers = rayon::current_num_threads().clamp(1, scene.frames.len().max(1));
     (0..workers).into_par_iter().for_each(|_| loop {
         let i = next.fetch_add(1, Ordering::SeqCst);
         if i >= scene.frames.len() {
@@ -781,11 +839,17 @@ fn run_named(
         let redo: Vec<usize> = (0..frames.len())
             .filter(|&i| walk::held(&frames[i]) != wanted[i])
             .collect();
+        // No more frames in flight than the memory plan allows.
         let redone: Vec<Result<FrameRecord>> = redo
-            .par_iter()
-            .map(|&i| {
-                let (used, fp, _) = &inputs[i];
-                compute(i, used, fp, &wanted[i])
+            .chunks(workers)
+            .flat_map(|chunk| {
+                chunk
+                    .par_iter()
+                    .map(|&i| {
+                        let (used, fp, _) = &inputs[i];
+                        compute(i, used, fp, &wanted[i])
+                    })
+                    .collect::<Vec<_>>()
             })
             .collect();
         for (&i, r) in redo.iter().zip(redone) {

@@ -160,6 +160,15 @@ fn declared_data_window(bytes: &[u8]) -> Option<[i32; 4]> {
     Some([v(0)?, v(1)?, v(2)?, v(3)?])
 }
 
+/// The size a single-part header declares, from the file's first bytes
+/// (`None` when the header is not among them or declares no pixels).
+pub fn declared_size(head: &[u8]) -> Option<(usize, usize)> {
+    let [x0, y0, x1, y1] = declared_data_window(head)?;
+    let w = usize::try_from(i64::from(x1) - i64::from(x0) + 1).ok()?;
+    let h = usize::try_from(i64::from(y1) - i64::from(y0) + 1).ok()?;
+    (w > 0 && h > 0).then_some((w, h))
+}
+
 fn decode_inner(bytes: &[u8], name: &Path, limits: &Limits) -> Result<HdrImage> {
     if let Some([x0, y0, x1, y1]) = declared_data_window(bytes) {
         if x1 < x0 || y1 < y0 {

@@ -130,6 +130,20 @@ pub fn repaired_warning(path: &Path, n: usize) -> String {
     )
 }
 
+/// The size an OpenEXR file declares, read from its first 64 KiB (where its
+/// header is); `None` for other formats or a header not found there. For
+/// planning only: the file is not validated.
+pub fn hdr_size_hint(path: &Path) -> Option<(usize, usize)> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(1 << 16)
+        .read_to_end(&mut head)
+        .ok()?;
+    exr::declared_size(&head)
+}
+
 /// Reads an HDR image, rejecting files that declare more than `limits` allow.
 pub fn read_hdr_with(path: &Path, limits: &Limits) -> Result<HdrImage> {
     let bytes = crate::fsutil::read(path)?;
