@@ -61,12 +61,17 @@ fn far_sources(
     } else {
         Vec::new()
     };
+    let only = if p.far_overlap > 0.0 {
+        overlapping_probes(px, regions, sky, p.far_overlap)
+    } else {
+        Vec::new()
+    };
     for i in 0..px.w * px.h {
         let Some(o) = px.region(i) else { continue };
         if regions[o].placed.view.is_some() || px.kinds[i] == Kind::Margin {
             continue;
         }
-        let r = sky.radiance_past(px.dir(i), &hidden);
+        let r = sky.radiance_from(px.dir(i), &hidden, only.get(o).map(Vec::as_slice));
         if let Some(r) = r {
             sky_rad.insert(i, r);
         }
@@ -172,6 +177,95 @@ fn brightest_measured(frame: &Measured, c: &[u8], s: [f32; 3]) -> usize {
         .filter(|&k| !frame.censor.clipped(c[k]))
         .max_by(|&a, &b| s[a].total_cmp(&s[b]))
         .unwrap_or(0)
+}
+
+/// Width of the ring around a clipped region over which a probe's bright area
+/// is compared with the frame's clipped pixels ([`overlapping_probes`]).
+const RING_DEG: f32 = 5.0;
+
+/// Widest grid [`overlapping_probes`] compares on.
+const OVERLAP_GRID_W: usize = 256;
+
+/// Per region, the probes whose far lookups count
+/// ([`FusionParams::far_overlap`]): those whose bright area (above the
+/// lookup's floor) in the region's directions and a ring of [`RING_DEG`]
+/// around it overlaps the frame's clipped pixels, as intersection over union
+/// of solid angle, at least `frac` times as well as the best probe's. A far
+/// source is where every probe that sees it sees it, in the same directions;
+/// a probe whose bright area there is elsewhere (a sunlit patch of floor seen
+/// from another place) sees another thing. A region no probe's bright area
+/// meets keeps them all.
+fn overlapping_probes(px: &Pixels, regions: &[Region], sky: &SkyView, frac: f32) -> Vec<Vec<bool>> {
+    let (n, m) = (regions.len(), sky.probes.len());
+    // On a grid at most OVERLAP_GRID_W wide (every `s`-th pixel each way): the
+    // overlap is a coarse statistic, and a large panorama would sample every
+    // probe at millions of pixels.
+    let s = px.w.div_ceil(OVERLAP_GRID_W).max(1);
+    let (cw, ch) = (px.w.div_ceil(s), px.h.div_ceil(s));
+    let full = |c: usize| (c / cw) * s * px.w + (c % cw) * s;
+    let lab: Vec<u32> = (0..cw * ch).map(|c| px.lab[full(c)]).collect();
+    // Each grid point within the ring takes the label of a region it reaches
+    // (breadth first, 8-connected, wrapping across the seam).
+    let steps = (RING_DEG * cw as f32 / 360.0).ceil().max(1.0) as usize;
+    let mut near = lab.clone();
+    let mut frontier: Vec<usize> = (0..cw * ch).filter(|&c| lab[c] != u32::MAX).collect();
+    for _ in 0..steps {
+        let mut next = Vec::new();
+        for &c in &frontier {
+            let (x, y) = ((c % cw) as i64, (c / cw) as i64);
+            for dy in -1..=1i64 {
+                let yy = y + dy;
+                if yy < 0 || yy >= ch as i64 {
+                    continue;
+                }
+                for dx in -1..=1i64 {
+                    let xx = (x + dx).rem_euclid(cw as i64);
+                    let k = yy as usize * cw + xx as usize;
+                    if near[k] == u32::MAX {
+                        near[k] = near[c];
+                        next.push(k);
+                    }
+                }
+            }
+        }
+        frontier = next;
+    }
+    let mut inter = vec![vec![0.0f64; m]; n];
+    let mut union = vec![vec![0.0f64; m]; n];
+    for (c, &l) in near.iter().enumerate() {
+        if l == u32::MAX || regions[l as usize].placed.view.is_some() {
+            continue;
+        }
+        let (o, i) = (l as usize, full(c));
+        let clipped = lab[c] == l && px.kinds[i] != Kind::Margin;
+        let (a, d) = (px.solid_angle(i), px.dir(i));
+        for j in 0..m {
+            let bright = sky.bright(j, d);
+            if clipped && bright {
+                inter[o][j] += a;
+            }
+            if clipped || bright {
+                union[o][j] += a;
+            }
+        }
+    }
+    (0..n)
+        .map(|o| {
+            let iou: Vec<f64> = (0..m)
+                .map(|j| {
+                    if union[o][j] > 0.0 {
+                        inter[o][j] / union[o][j]
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let best = iou.iter().copied().fold(0.0, f64::max);
+            iou.iter()
+                .map(|&v| best == 0.0 || v >= frac as f64 * best)
+                .collect()
+        })
+        .collect()
 }
 
 /// Phase 4a: per region and (clipped, measured) channel pair, the estimate's colour

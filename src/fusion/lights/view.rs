@@ -238,13 +238,35 @@ impl SkyView<'_> {
         self.radiance_past(d, &[])
     }
 
+    /// True when probe `j` sees something brighter than `floor` in direction
+    /// `d` (the frame's camera axes).
+    pub fn bright(&self, j: usize, d: Vec3) -> bool {
+        let (img, pose) = &self.probes[j];
+        let dw = self.frame.world_from_camera * d;
+        luminance(sample_dir(img, pose.world_from_camera.transpose() * dw)) > self.floor
+    }
+
     /// [`SkyView::radiance`] without the probe samples whose ray meets one of
     /// `hidden` (lights found hidden from the frame, world axes): what a probe
     /// sees of a light the frame cannot see is no far source for the frame.
     pub fn radiance_past(&self, d: Vec3, hidden: &[NearLight]) -> Option<[f32; 3]> {
+        self.radiance_from(d, hidden, None)
+    }
+
+    /// [`SkyView::radiance_past`] from the probes `only` marks (all when
+    /// `None`).
+    pub fn radiance_from(
+        &self,
+        d: Vec3,
+        hidden: &[NearLight],
+        only: Option<&[bool]>,
+    ) -> Option<[f32; 3]> {
         let dw = self.frame.world_from_camera * d;
         let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
-        for (img, pose) in &self.probes {
+        for (j, (img, pose)) in self.probes.iter().enumerate() {
+            if only.is_some_and(|o| !o.get(j).copied().unwrap_or(true)) {
+                continue;
+            }
             // A light placed nearby that this probe sees in that direction but
             // the frame does not is not at infinity: it lies elsewhere in the
             // frame. (A window's aperture, triangulated as a light, is met by
