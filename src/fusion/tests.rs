@@ -806,6 +806,63 @@ fn clipped_pixels_a_carried_light_misses_still_receive_its_power() {
     assert!((ratio - 1.0).abs() < 0.15, "{ratio}");
 }
 
+/// Probes upright at height 1.5 m at `probe_xy`, a frame likewise at
+/// `frame_xy`, each seeing `scene` (radiance from a position along a
+/// direction) at 256x128, and the frame's 8-bit codes clipping at `white`.
+struct Rendered {
+    probes: Vec<crate::scene::Pose>,
+    images: Vec<HdrImage>,
+    frame: crate::scene::Pose,
+    truth: HdrImage,
+    sdr: SdrImage,
+    lin: HdrImage,
+}
+
+impl Rendered {
+    fn new(
+        scene: fn(glam::Vec3, glam::Vec3) -> [f32; 3],
+        probe_xy: &[(f32, f32)],
+        frame_xy: (f32, f32),
+        white: f32,
+    ) -> Self {
+        use lights::tests::upright;
+        let (w, h) = (256, 128);
+        let render = |pose: &crate::scene::Pose| {
+            HdrImage::from_fn(w, h, |x, y| {
+                let d = crate::sphere::pixel_to_dir(x, y, w, h);
+                scene(pose.position, pose.world_from_camera * d)
+            })
+        };
+        let at = |(x, y): (f32, f32)| upright(glam::Vec3::new(x, y, 1.5));
+        let probes: Vec<_> = probe_xy.iter().map(|&p| at(p)).collect();
+        let images = probes.iter().map(render).collect();
+        let frame = at(frame_xy);
+        let truth = render(&frame);
+        let (codes, lin) = sdr_of(&truth, white);
+        let sdr = SdrImage::from_vec(w, h, codes).unwrap();
+        Rendered {
+            probes,
+            images,
+            frame,
+            truth,
+            sdr,
+            lin,
+        }
+    }
+
+    /// The probes as a far-source view from the frame, counting samples
+    /// above `white`.
+    fn sky(&self, white: f32) -> lights::SkyView<'_> {
+        lights::SkyView {
+            probes: self.images.iter().zip(&self.probes).collect(),
+            frame: self.frame,
+            floor: white,
+            near: Vec::new(),
+            witnesses: &[],
+        }
+    }
+}
+
 /// A room with a window in the wall x = 3 (y in [-1, 1], z in [1, 2.2]) onto a
 /// sky that is brighter towards a low sun: radiance through the window depends
 /// only on the direction.
@@ -823,33 +880,15 @@ fn window_room(from: glam::Vec3, d: glam::Vec3) -> [f32; 3] {
 
 #[test]
 fn a_window_region_takes_the_sky_the_other_probes_see_in_its_directions() {
-    use lights::tests::upright;
-    use lights::SkyView;
-    let (w, h) = (256, 128);
-    let render = |pose: &Pose| {
-        HdrImage::from_fn(w, h, |x, y| {
-            let d = crate::sphere::pixel_to_dir(x, y, w, h);
-            window_room(pose.position, pose.world_from_camera * d)
-        })
-    };
-    use crate::scene::Pose;
-    let probes: Vec<Pose> = [(0.0, -1.0), (0.5, 1.2), (-1.0, 0.2), (1.5, -0.3)]
-        .iter()
-        .map(|&(x, y)| upright(glam::Vec3::new(x, y, 1.5)))
-        .collect();
-    let images: Vec<HdrImage> = probes.iter().map(render).collect();
-    let frame = upright(glam::Vec3::new(0.6, 0.1, 1.5));
-    let truth = render(&frame);
     let white = 2.0f32;
-    let (codes, lin) = sdr_of(&truth, white);
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
-    let sky = SkyView {
-        probes: images.iter().zip(&probes).collect(),
-        frame,
-        floor: white,
-        near: Vec::new(),
-        witnesses: &[],
-    };
+    let r = Rendered::new(
+        window_room,
+        &[(0.0, -1.0), (0.5, 1.2), (-1.0, 0.2), (1.5, -0.3)],
+        (0.6, 0.1),
+        white,
+    );
+    let (images, truth, sdr, lin) = (&r.images, &r.truth, &r.sdr, &r.lin);
+    let sky = r.sky(white);
     // Looking away from the window, no probe sees anything bright.
     assert!(sky
         .radiance(glam::Vec3::new(0.0, 0.0, 1.0).normalize())
@@ -907,36 +946,16 @@ fn two_patches(from: glam::Vec3, d: glam::Vec3) -> [f32; 3] {
 
 #[test]
 fn a_far_lookup_counts_only_the_probes_that_see_the_bright_patch_where_the_frame_does() {
-    use crate::scene::Pose;
-    use lights::tests::upright;
     use lights::SkyView;
     let (w, h) = (256, 128);
-    let render = |pose: &Pose| {
-        HdrImage::from_fn(w, h, |x, y| {
-            let d = crate::sphere::pixel_to_dir(x, y, w, h);
-            two_patches(pose.position, pose.world_from_camera * d)
-        })
-    };
+    let white = 2.0f32;
     // A probe near the frame, and one far away straight above the small
     // bright patch: looking down it sees that patch where the frame sees the
     // large dim one.
-    let probes: Vec<Pose> = [(1.3, 0.1), (4.0, 0.0)]
-        .iter()
-        .map(|&(x, y)| upright(glam::Vec3::new(x, y, 1.5)))
-        .collect();
-    let images: Vec<HdrImage> = probes.iter().map(render).collect();
-    let frame = upright(glam::Vec3::new(1.0, 0.0, 1.5));
-    let truth = render(&frame);
-    let white = 2.0f32;
-    let (codes, lin) = sdr_of(&truth, white);
-    let sdr = SdrImage::from_vec(w, h, codes).unwrap();
-    let sky = SkyView {
-        probes: images.iter().zip(&probes).collect(),
-        frame,
-        floor: white,
-        near: Vec::new(),
-        witnesses: &[],
-    };
+    let r = Rendered::new(two_patches, &[(1.3, 0.1), (4.0, 0.0)], (1.0, 0.0), white);
+    let (images, probes, frame) = (&r.images, &r.probes, r.frame);
+    let (truth, sdr, lin) = (&r.truth, &r.sdr, &r.lin);
+    let sky = r.sky(white);
     // The power above white over the frame's view of the dim patch.
     let on_patch = |img: &HdrImage| {
         let sa = row_solid_angles(w, h);
