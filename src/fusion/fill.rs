@@ -62,7 +62,7 @@ fn far_sources(
         Vec::new()
     };
     let only = if p.far_overlap > 0.0 {
-        overlapping_probes(px, regions, sky, p.far_overlap)
+        overlapping_probes(px, regions, sky, &hidden, p.far_overlap.min(1.0))
     } else {
         Vec::new()
     };
@@ -179,23 +179,32 @@ fn brightest_measured(frame: &Measured, c: &[u8], s: [f32; 3]) -> usize {
         .unwrap_or(0)
 }
 
-/// Width of the ring around a clipped region over which a probe's bright area
-/// is compared with the frame's clipped pixels ([`overlapping_probes`]).
+/// Least width of the ring around a clipped region over which a probe's
+/// bright area is compared with the frame's clipped pixels
+/// ([`overlapping_probes`]).
 const RING_DEG: f32 = 5.0;
 
 /// Widest grid [`overlapping_probes`] compares on.
 const OVERLAP_GRID_W: usize = 256;
 
 /// Per region, the probes whose far lookups count
-/// ([`FusionParams::far_overlap`]): those whose bright area (above the
-/// lookup's floor) in the region's directions and a ring of [`RING_DEG`]
-/// around it overlaps the frame's clipped pixels, as intersection over union
-/// of solid angle, at least `frac` times as well as the best probe's. A far
-/// source is where every probe that sees it sees it, in the same directions;
-/// a probe whose bright area there is elsewhere (a sunlit patch of floor seen
-/// from another place) sees another thing. A region no probe's bright area
-/// meets keeps them all.
-fn overlapping_probes(px: &Pixels, regions: &[Region], sky: &SkyView, frac: f32) -> Vec<Vec<bool>> {
+/// ([`FusionParams::far_overlap`]): those whose bright area (the samples the
+/// far lookup would take, [`SkyView::bright`]) in the region's directions and
+/// a ring around it overlaps the frame's clipped pixels, as intersection over
+/// union of solid angle, at least `frac` times as well as the best probe's. A
+/// far source is where every probe that sees it sees it, in the same
+/// directions; a probe whose bright area there is elsewhere (a sunlit patch of
+/// floor seen from another place) sees another thing. A region no probe's
+/// bright area meets, or too small to hold a point of the grid, keeps them
+/// all. The ring is [`RING_DEG`] rounded up to whole grid steps (8-connected,
+/// so wider on the diagonals), counted in pixels of the 2:1 grid.
+fn overlapping_probes(
+    px: &Pixels,
+    regions: &[Region],
+    sky: &SkyView,
+    hidden: &[NearLight],
+    frac: f32,
+) -> Vec<Vec<bool>> {
     let (n, m) = (regions.len(), sky.probes.len());
     // On a grid at most OVERLAP_GRID_W wide (every `s`-th pixel each way): the
     // overlap is a coarse statistic, and a large panorama would sample every
@@ -240,7 +249,7 @@ fn overlapping_probes(px: &Pixels, regions: &[Region], sky: &SkyView, frac: f32)
         let clipped = lab[c] == l && px.kinds[i] != Kind::Margin;
         let (a, d) = (px.solid_angle(i), px.dir(i));
         for j in 0..m {
-            let bright = sky.bright(j, d);
+            let bright = sky.bright(j, d, hidden);
             if clipped && bright {
                 inter[o][j] += a;
             }
@@ -369,7 +378,9 @@ fn fill_partial(
 /// (all of them if none is), so the light is not lost. Such a promoted pixel keeps
 /// its measured channels ([`keep_measured`]): a sunlit wall clipped in red only
 /// must not take the light's colour; the part of the light those channels would
-/// have held is dropped, since the frame measured that it is not there.
+/// have held is dropped, since the frame measured that it is not there (with
+/// [`FusionParams::measured_bound`], the light itself is scaled down until
+/// those channels could have measured it).
 fn promote(
     frame: &Measured,
     estimate: &HdrImage,

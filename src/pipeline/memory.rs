@@ -14,8 +14,9 @@ use super::Method;
 
 /// Bytes per pixel of a frame in flight, by method: the peak resident memory of
 /// one frame at 7776x3888 on one thread (kitchen, `/usr/bin/time -v`: fusion
-/// and flow 1.58 GiB, warp 1.07 GiB, probes and program included) over its
-/// pixels, rounded up (docs/speed.md, "Frames in flight by memory").
+/// and flow 1.58 GiB, warp 1.07 GiB) less the program's base, over its pixels
+/// (51.5 and 33.6), with a margin (docs/speed.md, "Frames in flight by
+/// memory").
 pub fn bytes_per_pixel(method: Method) -> u64 {
     match method {
         Method::Warp => 40,
@@ -66,7 +67,7 @@ pub fn plan(
     let fixed = BASE_BYTES.saturating_add(probe_bytes(probes_px));
     let wanted = threads.clamp(1, frames.max(1));
     let fits = limit.saturating_sub(fixed) / per_frame.max(1);
-    let workers = (fits as usize).clamp(1, wanted);
+    let workers = usize::try_from(fits).unwrap_or(usize::MAX).clamp(1, wanted);
     let peak = fixed.saturating_add(per_frame.saturating_mul(workers as u64));
     let note = if peak > limit {
         Some(format!(
@@ -99,7 +100,7 @@ pub fn plan(
 
 /// The default limit: three quarters of the memory free now (`MemAvailable`
 /// in `/proc/meminfo`), and no more than the room left under the process's
-/// cgroup limit (containers); 4 GiB where neither can be read.
+/// cgroup (v2) limits ([`cgroup_room`]); 4 GiB where neither can be read.
 pub fn default_limit() -> u64 {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
     let available = meminfo.as_deref().and_then(mem_available);
@@ -121,17 +122,41 @@ fn mem_available(meminfo: &str) -> Option<u64> {
     })
 }
 
-/// Room under the cgroup v2 memory limit (`memory.max` less
-/// `memory.current`), when there is a limit.
+/// The least room under the memory limits of the process's cgroup (v2, from
+/// `/proc/self/cgroup`) and its ancestors: `memory.max` less what is in use
+/// (`memory.current` without the page cache the kernel can drop,
+/// `inactive_file` of `memory.stat`). `None` when no limit is set or none
+/// can be read.
 fn cgroup_room() -> Option<u64> {
-    let base = std::path::Path::new("/sys/fs/cgroup");
-    let max = std::fs::read_to_string(base.join("memory.max")).ok()?;
-    let max: u64 = max.trim().parse().ok()?; // "max": no limit
-    let current: u64 = std::fs::read_to_string(base.join("memory.current"))
-        .ok()
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(0);
-    Some(max.saturating_sub(current))
+    let own = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    let rel = own.lines().find_map(|l| l.strip_prefix("0::"))?.trim();
+    let root = std::path::Path::new("/sys/fs/cgroup");
+    let mut dir = root.join(rel.trim_start_matches('/'));
+    let mut room: Option<u64> = None;
+    loop {
+        let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
+        if let Some(max) = read("memory.max").and_then(|m| m.trim().parse::<u64>().ok()) {
+            let current: u64 = read("memory.current")
+                .and_then(|c| c.trim().parse().ok())
+                .unwrap_or(0);
+            let cache = read("memory.stat")
+                .as_deref()
+                .and_then(inactive_file)
+                .unwrap_or(0);
+            let here = max.saturating_sub(current.saturating_sub(cache));
+            room = Some(room.map_or(here, |r| r.min(here)));
+        }
+        if dir == root || !dir.pop() || !dir.starts_with(root) {
+            break;
+        }
+    }
+    room
+}
+
+/// `inactive_file` of a cgroup's `memory.stat` text, in bytes.
+fn inactive_file(stat: &str) -> Option<u64> {
+    stat.lines()
+        .find_map(|l| l.strip_prefix("inactive_file ")?.trim().parse().ok())
 }
 
 #[cfg(test)]
@@ -175,6 +200,8 @@ mod tests {
         let text = "MemTotal:       24000000 kB\nMemFree:  100 kB\nMemAvailable:   20000000 kB\n";
         assert_eq!(mem_available(text), Some(20_000_000 * 1024));
         assert_eq!(mem_available("MemTotal: 1 kB\n"), None);
-        assert!(default_limit() > 0);
+        let stat = "anon 10\nfile 20\ninactive_file 4096\nactive_file 5\n";
+        assert_eq!(inactive_file(stat), Some(4096));
+        assert_eq!(inactive_file("anon 1\n"), None);
     }
 }

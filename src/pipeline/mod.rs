@@ -573,39 +573,41 @@ pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Resu
         .collect())
 }
 
-/// How many frames `run` computes at once ([`memory::plan`]): the probes it
-/// will load (those `remaining` frames use, each at most the working size
-/// `frame`, its own size read from its header where it is an OpenEXR file),
-/// and frames of `frame` pixels.
+/// How many frames `run` computes at once ([`memory::plan`]) when `frames`
+/// frames of `frame` pixels are to be computed with the probes `needed`
+/// marks loaded: each at its own size read from its OpenEXR header, no
+/// larger than the working size when one is given (`load_probe`); other
+/// formats count at the frame's size.
 fn memory_plan(
     scene: &Scene,
     params: &RunParams,
-    remaining: &[AtomicUsize],
+    needed: &[bool],
     (fw, fh): (usize, usize),
     threads: usize,
-    pending: usize,
+    frames: usize,
 ) -> memory::Plan {
     let probes_px: u64 = scene
         .probes
         .iter()
-        .zip(remaining)
-        .filter(|(_, n)| n.load(Ordering::SeqCst) > 0)
+        .zip(needed)
+        .filter(|(_, &n)| n)
         .map(|(p, _)| {
-            let (w, h) = p
-                .hdr
-                .as_deref()
-                .and_then(io::hdr_size_hint)
-                .map_or((fw, fh), |(w, h)| (w.min(fw), h.min(fh)));
-            (w * h) as u64
+            let own = p.hdr.as_deref().and_then(io::hdr_size_hint);
+            let (w, h) = match (own, params.size) {
+                (Some((w, h)), Some((sw, sh))) => (w.min(sw), h.min(sh)),
+                (Some(d), None) => d,
+                (None, _) => (fw, fh),
+            };
+            (w as u64).saturating_mul(h as u64)
         })
-        .sum();
+        .fold(0u64, u64::saturating_add);
     let limit = params.memory_limit.unwrap_or_else(memory::default_limit);
     memory::plan(
         params.method,
-        (fw * fh) as u64,
+        (fw as u64).saturating_mul(fh as u64),
         probes_px,
         threads,
-        pending,
+        frames,
         limit,
     )
 }
@@ -715,7 +717,11 @@ fn run_named(
         .filter(|(i, (_, _, kept))| kept.is_none() && mine(*i))
         .count();
     let threads = rayon::current_num_threads();
-    let mem = memory_plan(scene, params, &remaining, (fw, fh), threads, pending);
+    let needed: Vec<bool> = remaining
+        .iter()
+        .map(|n| n.load(Ordering::SeqCst) > 0)
+        .collect();
+    let mem = memory_plan(scene, params, &needed, (fw, fh), threads, pending);
     let workers = mem.workers;
     let exr = io::ExrWriteOptions {
         compression: params.exr_compression,
@@ -727,7 +733,8 @@ fn run_named(
         get: &get_probe,
         pairs: &pairs,
     };
-    let noted: Mutex<Vec<String>> = Mutex::new(mem.note.into_iter().collect());
+    let noted: Mutex<Vec<String>> =
+        Mutex::new(mem.note.filter(|_| pending > 0).into_iter().collect());
     // A frame and its two witnesses per worker in flight, neighbours sharing.
     let frames = FrameCache::new(2 * workers);
     let compute = |i: usize, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
@@ -839,15 +846,32 @@ fn run_named(
         let redo: Vec<usize> = (0..frames.len())
             .filter(|&i| walk::held(&frames[i]) != wanted[i])
             .collect();
-        // No more frames in flight than the memory plan allows.
+        // The probes these frames use are loaded again and dropped once no
+        // frame left needs them; no more frames in flight than their own
+        // memory plan allows.
+        for &i in &redo {
+            for &u in &inputs[i].0 {
+                remaining[u].fetch_add(1, Ordering::SeqCst);
+            }
+        }
+        let needed: Vec<bool> = remaining
+            .iter()
+            .map(|n| n.load(Ordering::SeqCst) > 0)
+            .collect();
+        let again = memory_plan(scene, params, &needed, (fw, fh), threads, redo.len());
+        if pending == 0 && !redo.is_empty() {
+            warnings.extend(again.note);
+        }
         let redone: Vec<Result<FrameRecord>> = redo
-            .chunks(workers)
+            .chunks(again.workers)
             .flat_map(|chunk| {
                 chunk
                     .par_iter()
                     .map(|&i| {
                         let (used, fp, _) = &inputs[i];
-                        compute(i, used, fp, &wanted[i])
+                        let r = compute(i, used, fp, &wanted[i]);
+                        release(used);
+                        r
                     })
                     .collect::<Vec<_>>()
             })

@@ -238,12 +238,41 @@ impl SkyView<'_> {
         self.radiance_past(d, &[])
     }
 
-    /// True when probe `j` sees something brighter than `floor` in direction
-    /// `d` (the frame's camera axes).
-    pub fn bright(&self, j: usize, d: Vec3) -> bool {
-        let (img, pose) = &self.probes[j];
+    /// True when probe `j`'s sample in direction `d` (the frame's camera axes)
+    /// counts in the far lookup ([`SkyView::radiance_past`] with `hidden`):
+    /// brighter than `floor`, not a light placed nearby or hidden from the
+    /// frame, and not a direction the frame's neighbours all measured.
+    pub fn bright(&self, j: usize, d: Vec3, hidden: &[NearLight]) -> bool {
         let dw = self.frame.world_from_camera * d;
-        luminance(sample_dir(img, pose.world_from_camera.transpose() * dw)) > self.floor
+        self.far_sample(j, dw, hidden).is_some() && !self.witnessed_unclipped(dw)
+    }
+
+    /// Probe `j`'s sample in world direction `dw` when it may show a far
+    /// source: brighter than `floor`, and its ray meets no light placed
+    /// nearby that the frame's ray misses (that light lies elsewhere in the
+    /// frame; a window's aperture triangulated as a light is met by both
+    /// rays, the sky through it is at infinity) and none of `hidden`.
+    fn far_sample(&self, j: usize, dw: Vec3, hidden: &[NearLight]) -> Option<[f32; 3]> {
+        let (img, pose) = &self.probes[j];
+        let slack = NEAR_SLACK_PX * std::f32::consts::TAU / img.width().max(1) as f32;
+        if self
+            .near
+            .iter()
+            .any(|l| l.hit(pose.position, dw, slack) && !l.hit(self.frame.position, dw, slack))
+        {
+            return None;
+        }
+        if hidden.iter().any(|l| l.hit(pose.position, dw, slack)) {
+            return None;
+        }
+        let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
+        (luminance(c) > self.floor).then_some(c)
+    }
+
+    /// True when every neighbouring frame measured world direction `dw`
+    /// unclipped (no witnesses: false).
+    fn witnessed_unclipped(&self, dw: Vec3) -> bool {
+        !self.witnesses.is_empty() && self.witnesses.iter().all(|w| w.unclipped(dw))
     }
 
     /// [`SkyView::radiance`] without the probe samples whose ray meets one of
@@ -263,30 +292,14 @@ impl SkyView<'_> {
     ) -> Option<[f32; 3]> {
         let dw = self.frame.world_from_camera * d;
         let (mut sum, mut norm) = ([0.0f64; 3], 0.0f64);
-        for (j, (img, pose)) in self.probes.iter().enumerate() {
+        for (j, (_, pose)) in self.probes.iter().enumerate() {
             if only.is_some_and(|o| !o.get(j).copied().unwrap_or(true)) {
                 continue;
             }
-            // A light placed nearby that this probe sees in that direction but
-            // the frame does not is not at infinity: it lies elsewhere in the
-            // frame. (A window's aperture, triangulated as a light, is met by
-            // both rays: the sky through it is at infinity.)
-            let slack = NEAR_SLACK_PX * std::f32::consts::TAU / img.width().max(1) as f32;
-            if self
-                .near
-                .iter()
-                .any(|l| l.hit(pose.position, dw, slack) && !l.hit(self.frame.position, dw, slack))
-            {
+            let Some(c) = self.far_sample(j, dw, hidden) else {
                 continue;
-            }
-            if hidden.iter().any(|l| l.hit(pose.position, dw, slack)) {
-                continue;
-            }
-            let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
-            if luminance(c) <= self.floor {
-                continue;
-            }
-            if !self.witnesses.is_empty() && self.witnesses.iter().all(|w| w.unclipped(dw)) {
+            };
+            if self.witnessed_unclipped(dw) {
                 return None;
             }
             let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
