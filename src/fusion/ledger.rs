@@ -398,9 +398,14 @@ pub(super) fn apply(
     max_angle_deg: f32,
     enforce: Option<Budgeted>,
     hidden: &[Hidden],
+    kept: &[bool],
     out: &mut HdrImage,
 ) -> Vec<LedgerEntry> {
     let n = regions.len();
+    // A pixel that kept a measured channel takes no light spread to it: the
+    // measured bound ([`super::FusionParams::measured_bound`]) set what it may
+    // hold, knowing the light's colour, which the ledger does not.
+    let open_to = |i: usize| px.kinds[i] == Kind::Full && !kept.get(i).copied().unwrap_or(false);
     let partial = enforce != Some(Budgeted::Full);
     let budget = budgets(regions, ev, max_angle_deg, partial, hidden);
     let mut min_sa = vec![f64::INFINITY; n];
@@ -508,7 +513,7 @@ pub(super) fn apply(
             .sum();
         let open: Vec<&(usize, f64, f32)> = m
             .iter()
-            .filter(|&&(i, _, g)| g > 1.0 && px.kinds[i] == Kind::Full)
+            .filter(|&&(i, _, g)| g > 1.0 && open_to(i))
             .collect();
         // The largest uniform raise `l` (each open pixel scaled by min(1 + l, g))
         // that places no more than `lost`, by bisection.
@@ -538,7 +543,7 @@ pub(super) fn apply(
         for &(i, _, g) in m {
             let t = if g < 1.0 {
                 g
-            } else if px.kinds[i] == Kind::Full {
+            } else if open_to(i) {
                 (1.0 + raise as f32).min(g)
             } else {
                 1.0

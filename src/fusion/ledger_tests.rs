@@ -164,6 +164,26 @@ fn case() -> impl Strategy<Value = Case> {
         .prop_map(|(lamps, peak, seen)| Case { lamps, peak, seen })
 }
 
+/// Like [`case`], with codes that clip short of the top code (250-254) or
+/// measure (100-199): no pixel has a channel at 255, so every pixel that kept
+/// a measured channel is one the measured bound applies to.
+fn kept_case() -> impl Strategy<Value = Case> {
+    let code = prop_oneof![250u8..255, 100u8..200];
+    let lamp = (
+        2..W - 4,
+        2..H - 4,
+        0usize..3,
+        [code.clone(), code.clone(), code],
+        [1e-6f32..1e4, 1e-6f32..1e4, 1e-6f32..1e4],
+    );
+    (
+        proptest::collection::vec(lamp, 1..4),
+        [0.5f32..1e5, 0.5f32..1e5, 0.5f32..1e5],
+        proptest::collection::vec((0..W, 0..H, 1e-4f64..10.0), 0..4),
+    )
+        .prop_map(|(lamps, peak, seen)| Case { lamps, peak, seen })
+}
+
 fn build(c: &Case) -> (SdrImage, HdrImage, HdrImage, Evidence) {
     let mut codes = vec![100u8; W * H * 3];
     let mut lin = HdrImage::from_fn(W, H, |_, _| [0.2; 3]);
@@ -298,6 +318,46 @@ proptest! {
         let bound = ceiling_bound(&c, &ev, &rep);
         let mask = clip_mask(&sdr, &frame.censor, p.margin_px);
         held_everywhere(&out, &lin, &mask, bound, 1e-4, &rep)?;
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// A pixel that kept a measured channel (below the bleed code, none at
+    /// 255) holds in each channel at most the clip radiance times the largest
+    /// ratio of that channel to one of its measured channels in any colour
+    /// the estimate holds (its lights or the grey around them): what a light
+    /// could put there without the measured channel recording more than it
+    /// did. Whatever path filled it (partly clipped, promoted, the ledger's
+    /// spreading of a ceiling's excess).
+    #[test]
+    fn a_measured_channel_bounds_the_light_at_its_pixel(c in kept_case()) {
+        let (sdr, lin, est, ev) = build(&c);
+        let frame = Measured::new(&sdr, &lin, 1.0);
+        let (out, _) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &ledger_on()).unwrap();
+        let colours: Vec<[f32; 3]> = c.lamps.iter().map(|l| l.4).chain([[0.2; 3]]).collect();
+        for y in 0..H {
+            for x in 0..W {
+                let i = y * W + x;
+                let codes = &sdr.data()[3 * i..3 * i + 3];
+                let measured: Vec<usize> = (0..3).filter(|&k| !frame.censor.bleeds(codes[k])).collect();
+                if measured.is_empty() {
+                    continue;
+                }
+                let (v, s) = (out.get(x, y), lin.get(x, y));
+                for k in 0..3 {
+                    let ratio = colours
+                        .iter()
+                        .flat_map(|e| measured.iter().map(move |&m| e[k] / e[m]))
+                        .fold(1.0f32, f32::max);
+                    prop_assert!(
+                        v[k] <= (frame.white * ratio).max(s[k]) * (1.0 + 1e-3),
+                        "({x},{y}) codes {codes:?} {v:?} ratio {ratio}"
+                    );
+                }
+            }
+        }
     }
 }
 

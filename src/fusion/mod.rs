@@ -628,6 +628,18 @@ pub fn fuse_with_lights(
         &mut out,
     );
     let ledger = evidence.map(|ev| {
+        let kept: Vec<bool> = if p.measured_bound {
+            frame
+                .codes
+                .data()
+                .chunks_exact(3)
+                .map(|c| {
+                    c.iter().all(|&k| k < u8::MAX) && !c.iter().all(|&k| frame.censor.bleeds(k))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         let mut l = ledger::apply(
             frame.radiance,
             &px,
@@ -636,6 +648,7 @@ pub fn fuse_with_lights(
             p.max_angle_deg,
             p.ledger,
             &hidden,
+            &kept,
             &mut out,
         );
         ledger::hold_walk(frame.radiance, &px, &ev.walk, &mut l, &mut out);
