@@ -148,27 +148,18 @@ const W: usize = 48;
 const H: usize = 24;
 
 fn case() -> impl Strategy<Value = Case> {
-    let code = prop_oneof![Just(255u8), Just(255u8), 100u8..200];
-    let lamp = (
-        2..W - 4,
-        2..H - 4,
-        0usize..3,
-        [code.clone(), code.clone(), code],
-        [1e-6f32..1e4, 1e-6f32..1e4, 1e-6f32..1e4],
-    );
-    (
-        proptest::collection::vec(lamp, 1..4),
-        [0.5f32..1e5, 0.5f32..1e5, 0.5f32..1e5],
-        proptest::collection::vec((0..W, 0..H, 1e-4f64..10.0), 0..4),
-    )
-        .prop_map(|(lamps, peak, seen)| Case { lamps, peak, seen })
+    case_with(prop_oneof![Just(255u8), Just(255u8), 100u8..200])
 }
 
 /// Like [`case`], with codes that clip short of the top code (250-254) or
 /// measure (100-199): no pixel has a channel at 255, so every pixel that kept
 /// a measured channel is one the measured bound applies to.
 fn kept_case() -> impl Strategy<Value = Case> {
-    let code = prop_oneof![250u8..255, 100u8..200];
+    case_with(prop_oneof![250u8..255, 100u8..200])
+}
+
+/// Random cases whose lamps' codes are drawn from `code`.
+fn case_with(code: impl Strategy<Value = u8> + Clone) -> impl Strategy<Value = Case> {
     let lamp = (
         2..W - 4,
         2..H - 4,
