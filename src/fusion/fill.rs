@@ -492,12 +492,9 @@ fn keep_measured(frame: &Measured, v: &mut [f32; 3], i: usize, bound: bool) {
     let w = frame.codes.width();
     let s = frame.radiance.get(i % w, i / w);
     let codes = &frame.codes.data()[3 * i..3 * i + 3];
-    // A decoded channel at the top code may have been clamped by the decoder:
-    // the pixel's luma may then be saturated, and its other channels are the
-    // chroma block's spill (JPEG keeps chroma per 2x2 pixels), not measurements
-    // of this pixel. With no channel there, the luma is unsaturated and every
-    // channel below the bleed code measured this pixel.
-    if bound && codes.iter().all(|&c| c < u8::MAX) {
+    // A pixel with a channel at the top code is left alone
+    // ([`Measured::bounds_light`]).
+    if bound && frame.bounds_light(i) {
         let g = (0..3)
             .filter(|&k| !frame.censor.bleeds(codes[k]) && v[k] > frame.white)
             .map(|k| frame.white / v[k])

@@ -398,14 +398,14 @@ pub(super) fn apply(
     max_angle_deg: f32,
     enforce: Option<Budgeted>,
     hidden: &[Hidden],
-    kept: &[bool],
+    bounded: &dyn Fn(usize) -> bool,
     out: &mut HdrImage,
 ) -> Vec<LedgerEntry> {
     let n = regions.len();
     // A pixel that kept a measured channel takes no light spread to it: the
     // measured bound ([`super::FusionParams::measured_bound`]) set what it may
     // hold, knowing the light's colour, which the ledger does not.
-    let open_to = |i: usize| px.kinds[i] == Kind::Full && !kept.get(i).copied().unwrap_or(false);
+    let open_to = |i: usize| px.kinds[i] == Kind::Full && !bounded(i);
     let partial = enforce != Some(Budgeted::Full);
     let budget = budgets(regions, ev, max_angle_deg, partial, hidden);
     let mut min_sa = vec![f64::INFINITY; n];

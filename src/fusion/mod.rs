@@ -552,6 +552,15 @@ impl<'a> Measured<'a> {
         let c = &self.codes.data()[3 * i..3 * i + 3];
         c.iter().all(|&k| self.censor.bleeds(k))
     }
+
+    /// True when pixel `i` kept a channel that bounds the light it may hold
+    /// ([`FusionParams::measured_bound`]): some channel below the bleed code,
+    /// none at the top code (a channel there may have been clamped by the
+    /// decoder, the luma saturated, the others the JPEG chroma block's).
+    pub fn bounds_light(&self, i: usize) -> bool {
+        let c = &self.codes.data()[3 * i..3 * i + 3];
+        c.iter().all(|&k| k < u8::MAX) && !self.measured_nothing(i)
+    }
 }
 
 /// Fuses the SDR `frame` with an aligned HDR `estimate`.
@@ -628,18 +637,7 @@ pub fn fuse_with_lights(
         &mut out,
     );
     let ledger = evidence.map(|ev| {
-        let kept: Vec<bool> = if p.measured_bound {
-            frame
-                .codes
-                .data()
-                .chunks_exact(3)
-                .map(|c| {
-                    c.iter().all(|&k| k < u8::MAX) && !c.iter().all(|&k| frame.censor.bleeds(k))
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let bounded = |i: usize| p.measured_bound && frame.bounds_light(i);
         let mut l = ledger::apply(
             frame.radiance,
             &px,
@@ -648,7 +646,7 @@ pub fn fuse_with_lights(
             p.max_angle_deg,
             p.ledger,
             &hidden,
-            &kept,
+            &bounded,
             &mut out,
         );
         ledger::hold_walk(frame.radiance, &px, &ev.walk, &mut l, &mut out);

@@ -574,14 +574,14 @@ pub fn pending_frames(scene: &Scene, out_dir: &Path, params: &RunParams) -> Resu
 }
 
 /// How many frames `run` computes at once ([`memory::plan`]) when `frames`
-/// frames of `frame` pixels are to be computed with the probes `needed`
-/// marks loaded: each at its own size read from its OpenEXR header, no
+/// frames of `frame` pixels are to be computed with the probes some
+/// `remaining` frame still uses loaded: each at its own size read from its OpenEXR header, no
 /// larger than the working size when one is given (`load_probe`); other
 /// formats count at the frame's size.
 fn memory_plan(
     scene: &Scene,
     params: &RunParams,
-    needed: &[bool],
+    remaining: &[AtomicUsize],
     (fw, fh): (usize, usize),
     threads: usize,
     frames: usize,
@@ -589,8 +589,8 @@ fn memory_plan(
     let probes_px: u64 = scene
         .probes
         .iter()
-        .zip(needed)
-        .filter(|(_, &n)| n)
+        .zip(remaining)
+        .filter(|(_, n)| n.load(Ordering::SeqCst) > 0)
         .map(|(p, _)| {
             let own = p.hdr.as_deref().and_then(io::hdr_size_hint);
             let (w, h) = match (own, params.size) {
@@ -717,11 +717,7 @@ fn run_named(
         .filter(|(i, (_, _, kept))| kept.is_none() && mine(*i))
         .count();
     let threads = rayon::current_num_threads();
-    let needed: Vec<bool> = remaining
-        .iter()
-        .map(|n| n.load(Ordering::SeqCst) > 0)
-        .collect();
-    let mem = memory_plan(scene, params, &needed, (fw, fh), threads, pending);
+    let mem = memory_plan(scene, params, &remaining, (fw, fh), threads, pending);
     let workers = mem.workers;
     let exr = io::ExrWriteOptions {
         compression: params.exr_compression,
@@ -854,11 +850,7 @@ fn run_named(
                 remaining[u].fetch_add(1, Ordering::SeqCst);
             }
         }
-        let needed: Vec<bool> = remaining
-            .iter()
-            .map(|n| n.load(Ordering::SeqCst) > 0)
-            .collect();
-        let again = memory_plan(scene, params, &needed, (fw, fh), threads, redo.len());
+        let again = memory_plan(scene, params, &remaining, (fw, fh), threads, redo.len());
         if pending == 0 && !redo.is_empty() {
             warnings.extend(again.note);
         }
