@@ -185,7 +185,8 @@ pub enum Source {
     Carried,
     /// A far source the probes see in the frame's directions.
     Far,
-    /// The probes' bright regions in the region's directions (no light placed).
+    /// The probes' bright regions in the region's directions (no light placed):
+    /// what the nearest probe that saw them measured.
     Probes,
     /// No probe measured a light there: nothing is added.
     None,
@@ -288,6 +289,11 @@ pub(super) fn budgets(
     let cos_max = max_angle_deg.to_radians().cos();
     let probes = ev.seen.iter().map(|s| s.probe + 1).max().unwrap_or(0);
     let mut per = vec![vec![0.0f64; probes]; regions.len()];
+    // How far each probe stood from the frame.
+    let mut dist = vec![f32::INFINITY; probes];
+    for s in &ev.seen {
+        dist[s.probe] = s.at.length();
+    }
     for s in &ev.seen {
         // A cell of a light the frame measured where it would be is no
         // region's evidence.
@@ -309,6 +315,17 @@ pub(super) fn budgets(
         .iter()
         .zip(&per)
         .map(|(r, seen)| {
+            // A source no light was placed for has no distance to carry its
+            // power by: the nearest probe that saw it, the least extrapolated
+            // view, gives the budget; the most any probe saw bounds the
+            // interval's upper end.
+            let mut nearest = (f32::INFINITY, 0.0f64);
+            for (k, &v) in seen.iter().enumerate() {
+                if v > 0.0 && (dist[k] < nearest.0 || nearest.0.is_infinite()) {
+                    nearest = (dist[k], v);
+                }
+            }
+            let nearest = nearest.1;
             let probes = seen.iter().copied().fold(0.0f64, f64::max);
             let target = if r.fill.target.is_finite() {
                 r.fill.target.max(0.0)
@@ -324,8 +341,8 @@ pub(super) fn budgets(
                     0.0
                 };
                 (Source::Placed, target.max(most))
-            } else if probes > 0.0 {
-                (Source::Probes, target.min(probes))
+            } else if nearest > 0.0 {
+                (Source::Probes, target.min(nearest))
             } else {
                 (Source::None, 0.0)
             };

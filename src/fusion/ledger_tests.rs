@@ -131,6 +131,47 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
     assert!(added_power(&on, &lin).abs() < 1e-9);
 }
 
+#[test]
+fn a_light_no_probe_placed_is_budgeted_what_the_nearest_probe_saw() {
+    let (w, h) = (64, 32);
+    let (sdr, lin) = super::tests::frame_with_lamp(w, h, (11, 11), 1);
+    // The estimate holds far more than either probe saw there.
+    let est = HdrImage::from_fn(w, h, |x, y| {
+        if (10..=12).contains(&x) && (10..=12).contains(&y) {
+            [500.0; 3]
+        } else {
+            [0.2; 3]
+        }
+    });
+    let seen = |power: f64, probe: usize, at: f32| SeenLight {
+        dir: pixel_to_dir(11, 11, w, h),
+        power,
+        probe,
+        at: glam::Vec3::new(at, 0.0, 0.0),
+    };
+    // A probe 0.5 m away saw 0.02 there; one 4 m away, nearer the source, 0.3.
+    // Listed in either order, the budget is the near probe's; the interval's
+    // upper end keeps the most either saw.
+    for seen in [
+        vec![seen(0.02, 0, 0.5), seen(0.3, 1, 4.0)],
+        vec![seen(0.3, 0, 4.0), seen(0.02, 1, 0.5)],
+    ] {
+        let ev = Evidence {
+            peak: [900.0; 3],
+            seen,
+            walk: Vec::new(),
+        };
+        let frame = Measured::new(&sdr, &lin, 1.0);
+        let (on, rep) = fuse_with_lights(&frame, &est, &[], None, Some(&ev), &ledger_on()).unwrap();
+        assert_eq!(rep.ledger.len(), 1);
+        let e = &rep.ledger[0];
+        assert_eq!(e.source, Source::Probes);
+        assert!((e.budget - 0.02).abs() < 1e-9, "{e:?}");
+        assert!(e.most >= 0.3 - 1e-9, "{e:?}");
+        assert!(added_power(&on, &lin) <= 0.02 + 1e-6);
+    }
+}
+
 /// A random frame: grey with `lamps` square regions fully clipped or clipped in
 /// some channels, an estimate with random (possibly wildly coloured) light
 /// there, and random probe evidence.
