@@ -24,10 +24,15 @@ pub fn bytes_per_pixel(method: Method) -> u64 {
     }
 }
 
-/// Bytes a probe of `px` pixels takes once loaded and prepared (float RGB
-/// and its 8-bit tone-mapped copy).
-pub fn probe_bytes(px: u64) -> u64 {
-    16 * px
+/// Bytes a probe of `px` pixels takes once loaded and prepared for `method`
+/// (float RGB and its 8-bit tone-mapped copy; for the methods that match
+/// features, also its display copy, kept for probes up to 4M pixels and
+/// counted here for every size).
+pub fn probe_bytes(method: Method, px: u64) -> u64 {
+    match method {
+        Method::Warp | Method::Hybrid => 28 * px,
+        Method::Flow | Method::Fusion => 16 * px,
+    }
 }
 
 /// Resident memory of the program itself before any frame (code, OpenCV,
@@ -64,7 +69,7 @@ pub fn plan(
     limit: u64,
 ) -> Plan {
     let per_frame = bytes_per_pixel(method).saturating_mul(frame_px);
-    let fixed = BASE_BYTES.saturating_add(probe_bytes(probes_px));
+    let fixed = BASE_BYTES.saturating_add(probe_bytes(method, probes_px));
     let wanted = threads.clamp(1, frames.max(1));
     let fits = limit.saturating_sub(fixed) / per_frame.max(1);
     let workers = usize::try_from(fits).unwrap_or(usize::MAX).clamp(1, wanted);

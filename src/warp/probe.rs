@@ -30,6 +30,14 @@ pub struct FaceFeatures {
     pub index: MatchIndex,
 }
 
+/// Largest probe (in pixels) whose camera-response display copy is kept for
+/// matching: 4M pixels, 48 MB. The faces of every rotation read each probe
+/// pixel a dozen times (four bilinear taps, three channels, at up to twenty
+/// faces), so encoding every pixel once is cheaper than encoding each sample;
+/// the samples are the same either way (the same encoded values, interpolated
+/// alike).
+const DISPLAY_COPY_MAX_PX: usize = 1 << 22;
+
 /// A probe ready for the warp method.
 pub struct PreparedProbe {
     /// Its HDR radiance.
@@ -42,9 +50,10 @@ pub struct PreparedProbe {
     camera: Response,
     gain: f32,
     /// Display values in [0, 1], made on first use. With [`ProbeTonemap::Camera`]
-    /// matching never needs it: the response is applied to the samples taken (a
-    /// full-size copy is as large as the probe itself, and the flow method does not
-    /// match features at all).
+    /// matching uses it only for probes of at most [`DISPLAY_COPY_MAX_PX`] pixels;
+    /// for larger ones the response is applied to the samples taken (a full-size
+    /// copy is as large as the probe itself, and the flow method does not match
+    /// features at all).
     display: OnceLock<HdrImage>,
     /// Cache keyed by (yaw step, face index, face size).
     cache: Mutex<
@@ -96,21 +105,24 @@ impl PreparedProbe {
     /// seen by a camera rotated by `rot`.
     fn gray(&self, face: CubeFace, n: usize, e: f32, rot: glam::Mat3) -> Vec<u8> {
         let (w, h) = (self.image.width(), self.image.height());
-        match self.mode {
-            ProbeTonemap::Camera => {
-                let d = self.image.data();
-                let enc = |v: f32| self.camera.encode(v * self.gain);
-                gray_face(w, h, face, n, e, rot, |i| {
-                    [enc(d[3 * i]), enc(d[3 * i + 1]), enc(d[3 * i + 2])]
-                })
-            }
-            ProbeTonemap::Reinhard05 => {
-                let d = self.display().data();
-                gray_face(w, h, face, n, e, rot, |i| {
-                    [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
-                })
-            }
+        if self.mode == ProbeTonemap::Camera && w * h > DISPLAY_COPY_MAX_PX {
+            return self.gray_encoding_samples(face, n, e, rot);
         }
+        let d = self.display().data();
+        gray_face(w, h, face, n, e, rot, |i| {
+            [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
+        })
+    }
+
+    /// [`Self::gray`] with the camera response applied to the samples taken,
+    /// without a display copy.
+    fn gray_encoding_samples(&self, face: CubeFace, n: usize, e: f32, rot: glam::Mat3) -> Vec<u8> {
+        let (w, h) = (self.image.width(), self.image.height());
+        let d = self.image.data();
+        let enc = |v: f32| self.camera.encode(v * self.gain);
+        gray_face(w, h, face, n, e, rot, |i| {
+            [enc(d[3 * i]), enc(d[3 * i + 1]), enc(d[3 * i + 2])]
+        })
     }
 
     /// Features of `face` at rotation step `k`, computed on first use. The flag is
@@ -181,7 +193,10 @@ mod tests {
             let from_display = gray_face(w, h, face, 24, 1.2, rot, |i| {
                 [d[3 * i], d[3 * i + 1], d[3 * i + 2]]
             });
+            // Both paths: the display copy (a small probe) and the samples
+            // encoded one by one (a probe too large for the copy).
             assert_eq!(pp.gray(face, 24, 1.2, rot), from_display);
+            assert_eq!(pp.gray_encoding_samples(face, 24, 1.2, rot), from_display);
         }
     }
 }
