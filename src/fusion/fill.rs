@@ -35,8 +35,8 @@ fn shifted(estimate: &HdrImage, px: &Pixels, regions: &[Region], i: usize) -> [f
 }
 
 /// Phase 3: far sources (sky through a window) the probes see in the region's
-/// directions, for regions with no light carried through a surface; used where
-/// they cover at least `min_far_cover` of a region's fully clipped solid angle.
+/// directions, for regions with no light carried through a surface; used in
+/// every region with a fully clipped pixel ([`Far::covers`]).
 /// Kept per covered pixel only: regions are a few percent of a panorama.
 fn far_sources(
     px: &Pixels,
@@ -84,7 +84,7 @@ fn far_sources(
         }
     }
     for r in regions.iter_mut() {
-        r.far.ok = Far::covers(r.far.cover, p);
+        r.far.ok = Far::covers(r.far.cover);
     }
     // The median (by luminance) of each region's covered pixels: the least the
     // others get (a mean would spread a sun's core over them).

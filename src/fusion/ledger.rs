@@ -19,12 +19,14 @@
 //!   by the radiance the probes saw over the region's solid angle), the probes'
 //!   radiance carried through a light's surface, a far source looked up in the
 //!   frame's own directions, or, where no light was placed, the least of the
-//!   estimate's power and the most power one probe measured in the region's
-//!   directions (each probe's bright regions booked to the region nearest in
-//!   direction). With no distance there is no inverse-square extrapolation: a
-//!   probe's power is taken as it is, an assumption. (The nearest probe's alone
-//!   was tried: it misses a sun through a window the nearest probe does not see,
-//!   dev irradiance error 0.215 -> 0.230.)
+//!   estimate's power and the power the nearest probe that saw light in the
+//!   region's directions measured there (each probe's bright regions booked to
+//!   the region nearest in direction). With no distance there is no
+//!   inverse-square extrapolation: that probe's power is taken as it is, an
+//!   assumption. (The nearest probe's alone, whether or not it saw light there,
+//!   was tried earlier: it misses a sun through a window the nearest probe does
+//!   not see, dev irradiance error 0.215 -> 0.230; a probe that saw nothing
+//!   there is no view of the source.)
 //!
 //! Enforced at the end over every path at once: each region pixel keeps what the
 //! frame measured plus a share of its added light, scaled down to the ceiling and
@@ -321,8 +323,15 @@ pub(super) fn budgets(
             // interval's upper end.
             let mut nearest = (f32::INFINITY, 0.0f64);
             for (k, &v) in seen.iter().enumerate() {
-                if v > 0.0 && (dist[k] < nearest.0 || nearest.0.is_infinite()) {
-                    nearest = (dist[k], v);
+                // A probe whose distance is not finite (a broken pose) is the
+                // farthest, whatever the order.
+                let d = if dist[k].is_finite() {
+                    dist[k]
+                } else {
+                    f32::MAX
+                };
+                if v > 0.0 && (d < nearest.0 || nearest.0.is_infinite()) {
+                    nearest = (d, v);
                 }
             }
             let nearest = nearest.1;

@@ -143,18 +143,28 @@ fn a_light_no_probe_placed_is_budgeted_what_the_nearest_probe_saw() {
             [0.2; 3]
         }
     });
-    let seen = |power: f64, probe: usize, at: f32| SeenLight {
-        dir: pixel_to_dir(11, 11, w, h),
+    let seen_at = |x: usize, power: f64, probe: usize, at: f32| SeenLight {
+        dir: pixel_to_dir(x, 11, w, h),
         power,
         probe,
         at: glam::Vec3::new(at, 0.0, 0.0),
     };
-    // A probe 0.5 m away saw 0.02 there; one 4 m away, nearer the source, 0.3.
-    // Listed in either order, the budget is the near probe's; the interval's
-    // upper end keeps the most either saw.
+    let seen = |power: f64, probe: usize, at: f32| seen_at(11, power, probe, at);
+    // A probe 0.5 m away saw 0.02 there; one 4 m away, nearer the source, 0.3;
+    // one 0.1 m away saw its light on the other side of the sphere only, and
+    // is no view of this one. Listed in any order, the budget is the 0.5 m
+    // probe's; the interval's upper end keeps the most any saw there.
     for seen in [
-        vec![seen(0.02, 0, 0.5), seen(0.3, 1, 4.0)],
-        vec![seen(0.3, 0, 4.0), seen(0.02, 1, 0.5)],
+        vec![
+            seen(0.02, 0, 0.5),
+            seen(0.3, 1, 4.0),
+            seen_at(43, 5.0, 2, 0.1),
+        ],
+        vec![
+            seen_at(43, 5.0, 0, 0.1),
+            seen(0.3, 1, 4.0),
+            seen(0.02, 2, 0.5),
+        ],
     ] {
         let ev = Evidence {
             peak: [900.0; 3],

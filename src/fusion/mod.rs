@@ -88,11 +88,6 @@ pub struct FusionParams {
     /// irradiance error 0.064, 0.063, 0.048, 0.045 with 2, 3, 4, 5.
     #[serde(default = "default_far_probes")]
     pub far_probes: usize,
-    /// Fraction of a clipped region's fully clipped solid angle the far-source
-    /// lookup must cover to be used there. Measured on flat: 0.1, 0.3 and 0.5
-    /// within 0.001 in irradiance error.
-    #[serde(default = "default_far_cover")]
-    pub min_far_cover: f64,
     /// Distance (metres) within which the neighbouring frames of the walk
     /// witness the far sources (0: none do): a probe's bright sample in a
     /// direction that every such neighbour measured unclipped is no far source
@@ -283,10 +278,6 @@ fn default_far_probes() -> usize {
     6
 }
 
-fn default_far_cover() -> f64 {
-    0.3
-}
-
 fn default_surface_px() -> usize {
     16
 }
@@ -320,7 +311,6 @@ impl Default for FusionParams {
             surface_px: default_surface_px(),
             max_surface_err: default_surface_err(),
             far_probes: default_far_probes(),
-            min_far_cover: default_far_cover(),
             far_witness_m: default_far_witness_m(),
             disc_max_area: default_disc_max_area(),
             max_move_ratio: default_max_move_ratio(),

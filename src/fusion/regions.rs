@@ -130,11 +130,16 @@ pub(super) struct Far {
 }
 
 impl Far {
-    /// Whether a lookup covering `cover` (solid angle covered, of all the
-    /// region's fully clipped pixels) is the region's source: it covers at
-    /// least `min_far_cover` of it.
-    pub fn covers(cover: (f64, f64), p: &FusionParams) -> bool {
-        cover.1 > 0.0 && cover.0 >= p.min_far_cover * cover.1
+    /// Whether the far lookup (covering `cover.0` of the region's `cover.1`
+    /// solid angle of fully clipped pixels) is used in the region: in every
+    /// region with a fully clipped pixel. A far source the probes see in some
+    /// of a region's directions is evidence there, however little of the
+    /// region it covers (its partly clipped pixels included); the rest of the
+    /// region is booked at the covered pixels' mean and filled at least to
+    /// their median. Requiring a share of the region lost on development:
+    /// 0.1479, 0.1466, 0.1440 with 0.3, 0.2, 0.1 against 0.1410 with none.
+    pub fn covers(cover: (f64, f64)) -> bool {
+        cover.1 > 0.0
     }
 }
 

@@ -24,14 +24,17 @@ pub fn bytes_per_pixel(method: Method) -> u64 {
     }
 }
 
-/// Bytes a probe of `px` pixels takes once loaded and prepared for `method`
-/// (float RGB and its 8-bit tone-mapped copy; for the methods that match
-/// features, also its display copy, kept for probes up to 4M pixels and
-/// counted here for every size).
-pub fn probe_bytes(method: Method, px: u64) -> u64 {
-    match method {
-        Method::Warp | Method::Hybrid => 28 * px,
-        Method::Flow | Method::Fusion => 16 * px,
+/// Bytes probes of `px` pixels in all take once loaded and prepared (float RGB
+/// and an 8-bit tone-mapped copy); where a run `matches` features against
+/// them (the warp and hybrid methods, as a method or as fusion's base), also
+/// their float display copy, which the warp method keeps for probes up to 4M
+/// pixels (all of them with the Reinhard tone mapping): counted here at every
+/// size, an overestimate for larger probes.
+pub fn probe_bytes(matches: bool, px: u64) -> u64 {
+    if matches {
+        28 * px
+    } else {
+        16 * px
     }
 }
 
@@ -58,18 +61,18 @@ fn gib(b: u64) -> String {
 }
 
 /// Frames in flight for `threads` worker threads and `frames` frames to
-/// compute of `frame_px` pixels each with `method`, with `probes_px` the
-/// pixels of the probes the run keeps loaded, under `limit` bytes.
+/// compute of `frame_px` pixels each with `method`, with `probes` the bytes
+/// of the probes the run keeps loaded ([`probe_bytes`]), under `limit` bytes.
 pub fn plan(
     method: Method,
     frame_px: u64,
-    probes_px: u64,
+    probes: u64,
     threads: usize,
     frames: usize,
     limit: u64,
 ) -> Plan {
     let per_frame = bytes_per_pixel(method).saturating_mul(frame_px);
-    let fixed = BASE_BYTES.saturating_add(probe_bytes(method, probes_px));
+    let fixed = BASE_BYTES.saturating_add(probes);
     let wanted = threads.clamp(1, frames.max(1));
     let fits = limit.saturating_sub(fixed) / per_frame.max(1);
     let workers = usize::try_from(fits).unwrap_or(usize::MAX).clamp(1, wanted);
@@ -172,7 +175,14 @@ mod tests {
 
     #[test]
     fn every_thread_gets_a_frame_when_the_frames_fit() {
-        let p = plan(Method::Fusion, 512 * 256, 5 * 512 * 256, 8, 20, 4 * GIB);
+        let p = plan(
+            Method::Fusion,
+            512 * 256,
+            probe_bytes(false, 5 * 512 * 256),
+            8,
+            20,
+            4 * GIB,
+        );
         assert_eq!(p.workers, 8);
         assert!(p.note.is_none());
         // Never more workers than frames.
@@ -182,7 +192,14 @@ mod tests {
     #[test]
     fn large_panoramas_run_fewer_frames_at_once_and_say_so() {
         let px = 7776 * 3888;
-        let p = plan(Method::Fusion, px, 5 * 512 * 256, 8, 20, 4 * GIB);
+        let p = plan(
+            Method::Fusion,
+            px,
+            probe_bytes(false, 5 * 512 * 256),
+            8,
+            20,
+            4 * GIB,
+        );
         assert!(p.workers >= 1 && p.workers < 8, "{p:?}");
         assert!(p.peak <= 4 * GIB, "{p:?}");
         assert!(p.note.as_deref().unwrap().contains("memory limit"));

@@ -602,10 +602,15 @@ fn memory_plan(
         })
         .fold(0u64, u64::saturating_add);
     let limit = params.memory_limit.unwrap_or_else(memory::default_limit);
+    // The warp and hybrid methods match features against the probes, also as
+    // fusion's base.
+    let matching = |m: Method| matches!(m, Method::Warp | Method::Hybrid);
+    let matches = matching(params.method)
+        || (params.method == Method::Fusion && matching(params.fusion_base));
     memory::plan(
         params.method,
         (fw as u64).saturating_mul(fh as u64),
-        probes_px,
+        memory::probe_bytes(matches, probes_px),
         threads,
         frames,
         limit,

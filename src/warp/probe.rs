@@ -31,7 +31,8 @@ pub struct FaceFeatures {
 }
 
 /// Largest probe (in pixels) whose camera-response display copy is kept for
-/// matching: 4M pixels, 48 MB. The faces of every rotation read each probe
+/// matching: 4M pixels, 48 MiB (with [`ProbeTonemap::Reinhard05`] the copy is
+/// made at every size, as before). The faces of every rotation read each probe
 /// pixel a dozen times (four bilinear taps, three channels, at up to twenty
 /// faces), so encoding every pixel once is cheaper than encoding each sample;
 /// the samples are the same either way (the same encoded values, interpolated
