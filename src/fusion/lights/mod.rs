@@ -9,7 +9,7 @@ mod surface;
 mod view;
 
 pub use surface::{fit_surface, Surface};
-pub use view::{LightView, NearLight, SkyView, Witness};
+pub use view::{LightView, NearLight, SkyView};
 
 use super::{components, FrameLight, FusionParams};
 use crate::image::{luminance, HdrImage};
