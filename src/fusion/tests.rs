@@ -858,6 +858,7 @@ impl Rendered {
             frame: self.frame,
             floor: white,
             near: Vec::new(),
+            witnesses: &[],
         }
     }
 }
@@ -1377,6 +1378,7 @@ fn window_fill(light_power: Option<f64>, estimate_gain: f32, sky_probes: usize) 
         frame,
         floor: white,
         near: Vec::new(),
+        witnesses: &[],
     };
     let towards_window = glam::Vec3::new(3.0, 0.0, 1.6) - frame.position;
     let light: Vec<FrameLight> = light_power
@@ -2084,6 +2086,7 @@ fn the_far_lookup_skips_a_lamp_hidden_behind_the_facade() {
         frame: pose,
         floor: 1.0,
         near: Vec::new(),
+        witnesses: &[],
     };
     let lamp = compact_light(w, h, (58, 20), 0.05, 5000.0);
     let sa = row_solid_angles(w, h);

@@ -21,7 +21,7 @@ use crate::error::{Error, Result};
 use crate::flow::method::{
     flow_frame_scaled, restore_warped_lights, FlowMethodParams, FlowReport, RotatedSource,
 };
-use crate::fusion::lights::{pair_lights, PairLights};
+use crate::fusion::lights::{pair_lights, PairLights, Witness};
 use crate::fusion::{
     fuse_with_lights,
     walk::{Mend, WalkMode},
@@ -293,8 +293,8 @@ pub fn linearize(sdr: &SdrImage, scene: &Scene, frame: &Frame) -> HdrImage {
 }
 
 /// Without a working size every frame of the walk must have the first frame's
-/// size: the walk pass compares neighbouring frames, and a walk whose frames
-/// differ is most often frames of two cameras
+/// size: the walk pass and the far sources' witnesses compare neighbouring
+/// frames, and a walk whose frames differ is most often frames of two cameras
 /// or exports mixed in one folder. Read from the files' headers before any
 /// frame is computed, so a refused run writes nothing. Fails naming the first
 /// frame that differs and the first frame.
@@ -430,7 +430,30 @@ fn frame_inputs(
         parts.push(m.hdr.as_deref().map(file_stamp).unwrap_or_default());
         parts.push(format!("{:?}", m.pose));
     }
+    for n in witness_frames(scene, index, params) {
+        parts.push(file_stamp(&n.sdr));
+        parts.push(format!("{:?}", n.pose));
+    }
     (used, fingerprint(&parts))
+}
+
+/// The frames that witness the far sources of frame `i` of the walk
+/// (`fusion.far_witness_m`): the one before it and the one after it, when
+/// within that distance.
+fn witness_frames<'s>(scene: &'s Scene, i: usize, params: &RunParams) -> Vec<&'s Frame> {
+    let reach = params.fusion.far_witness_m;
+    let Some(frame) = scene.frames.get(i) else {
+        return Vec::new();
+    };
+    if params.method != Method::Fusion || !(reach > 0.0) {
+        return Vec::new();
+    }
+    [i.checked_sub(1), Some(i + 1)]
+        .into_iter()
+        .flatten()
+        .filter_map(|j| scene.frames.get(j))
+        .filter(|n| n.pose.position.distance(frame.pose.position) <= reach)
+        .collect()
 }
 
 /// The white point the probes' lights and evidence are found above, shared by
@@ -453,6 +476,71 @@ fn white_point(scene: &Scene, frame: &Frame, params: &RunParams) -> f32 {
         .response
         .decode(params.flow.censor.clip_code as f32 / 255.0)
         / scene.frame_luminance_gain(frame)
+}
+
+/// The frames `run` read last, at the working size: a frame is read for
+/// itself and, as a witness, for the frame on either side, and with frames
+/// taken in walk order those reads come close together. Each is decoded and
+/// resampled once instead of three times (at 7776x3888 a resampled frame takes
+/// 91 MB and about half a second). Holds at most `cap` frames, the oldest
+/// dropped first; two workers missing the same frame at once both read it.
+struct FrameCache {
+    slots: Mutex<std::collections::VecDeque<(PathBuf, Arc<SdrImage>)>>,
+    cap: usize,
+}
+
+impl FrameCache {
+    fn new(cap: usize) -> Self {
+        FrameCache {
+            slots: Mutex::new(std::collections::VecDeque::new()),
+            cap: cap.max(1),
+        }
+    }
+
+    /// Frame `f` at `size`, from the cache or read (and kept).
+    fn get(&self, f: &Frame, size: Option<(usize, usize)>) -> Result<Arc<SdrImage>> {
+        if let Ok(slots) = self.slots.lock() {
+            if let Some((_, img)) = slots.iter().find(|(p, _)| *p == f.sdr) {
+                return Ok(img.clone());
+            }
+        }
+        let img = Arc::new(load_frame(f, size)?);
+        if let Ok(mut slots) = self.slots.lock() {
+            if !slots.iter().any(|(p, _)| *p == f.sdr) {
+                slots.push_back((f.sdr.clone(), img.clone()));
+                while slots.len() > self.cap {
+                    slots.pop_front();
+                }
+            }
+        }
+        Ok(img)
+    }
+}
+
+/// The witnesses of frame `i` at the working size, read from their codes
+/// (the frames' radiance per code, as [`linearize`] gives it); a witness that
+/// cannot be read is left out (its own frame reports the error). `load` reads
+/// a frame at the working size (through `run`'s [`FrameCache`]).
+fn load_witnesses(
+    scene: &Scene,
+    i: usize,
+    params: &RunParams,
+    load: &dyn Fn(&Frame) -> Result<Arc<SdrImage>>,
+) -> Vec<Witness> {
+    let frames = witness_frames(scene, i, params);
+    if frames.is_empty() {
+        return Vec::new();
+    }
+    let white = white_point(scene, &scene.frames[i], params);
+    frames
+        .into_iter()
+        .filter_map(|n| {
+            let sdr = load(n).ok()?;
+            let g = scene.frame_luminance_gain(n);
+            let radiance = scene.response.decode_lut().map(|v| v / g);
+            Some(Witness::from_codes(&sdr, &radiance, white, n.pose))
+        })
+        .collect()
 }
 
 /// The frame's record when its probe and sidecar in `out_dir` are both present
@@ -550,8 +638,9 @@ fn run_named(
     report_name: &str,
     shard: Option<(usize, usize)>,
 ) -> Result<RunReport> {
-    // A shard computes every `count`-th frame of the whole walk; the walk as
-    // one sequence needs every frame.
+    // A shard computes every `count`-th frame of the whole walk (whose
+    // neighbours, not the shard's, witness its far sources); the walk as one
+    // sequence needs every frame.
     let mine = |i: usize| shard.map_or(true, |(k, c)| i % c == k);
     let whole_walk = shard.map_or(true, |(_, c)| c == 1);
     let (fw, fh) = match params.size {
@@ -647,12 +736,14 @@ fn run_named(
     };
     let noted: Mutex<Vec<String>> =
         Mutex::new(mem.note.filter(|_| pending > 0).into_iter().collect());
+    // A frame and its two witnesses per worker in flight, neighbours sharing.
+    let frames = FrameCache::new(2 * workers);
     let compute = |i: usize, used: &[usize], fp: &str, holds: &[Mend]| -> Result<FrameRecord> {
         let frame = &scene.frames[i];
         let probe_meta = &scene.probes[used[0]];
         let out = out_dir.join(format!("{}.exr", frame.id));
         let side = out_dir.join(format!("{}.json", frame.id));
-        let sdr = load_frame(frame, params.size)?;
+        let sdr = frames.get(frame, params.size)?;
         let mut repaired = 0;
         for &u in used {
             repaired += get_probe(u)?.1;
@@ -668,8 +759,10 @@ fn run_named(
         note_sizes(&noted, frame, (sdr.width(), sdr.height()), probe_size);
         let t = Instant::now();
         let lin = linearize(&sdr, scene, frame);
-        let (img, warp_report, flow_report, fusion_report) =
-            predict_held(scene, frame, &sdr, &lin, used, access, params, holds)?;
+        let witnesses = load_witnesses(scene, i, params, &|n| frames.get(n, params.size));
+        let (img, warp_report, flow_report, fusion_report) = predict_held(
+            scene, frame, &sdr, &lin, used, access, params, holds, &witnesses,
+        )?;
         let total_ms = t.elapsed().as_secs_f64() * 1e3;
         drop((sdr, lin));
         io::write_hdr_with(&out, &img, &exr)?;
@@ -927,7 +1020,28 @@ pub fn predict_frame(
     access: ProbeAccess,
     params: &RunParams,
 ) -> Result<Prediction> {
-    predict_held(scene, frame, sdr, lin, used, access, params, &[])
+    // The frame's place in the walk, for its neighbours.
+    let witnesses = scene
+        .frames
+        .iter()
+        .position(|f| f.id == frame.id)
+        .map(|i| {
+            load_witnesses(scene, i, params, &|n| {
+                load_frame(n, params.size).map(Arc::new)
+            })
+        })
+        .unwrap_or_default();
+    predict_held(
+        scene,
+        frame,
+        sdr,
+        lin,
+        used,
+        access,
+        params,
+        &[],
+        &witnesses,
+    )
 }
 
 /// [`predict_frame`], with the fusion's regions named in `walk` held to the
@@ -942,6 +1056,7 @@ fn predict_held(
     access: ProbeAccess,
     params: &RunParams,
     walk: &[Mend],
+    witnesses: &[Witness],
 ) -> Result<Prediction> {
     let (w, h) = (sdr.width(), sdr.height());
     let (get_probe, pairs) = (access.get, access.pairs);
@@ -967,7 +1082,7 @@ fn predict_held(
         let mut base_used = used.to_vec();
         base_used.truncate(params.fusion_base.probes_needed());
         let (est, wr, fr, _) =
-            predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[])?;
+            predict_held(scene, frame, sdr, lin, &base_used, access, &base, &[], &[])?;
         let white = white_point(scene, frame, params);
         let lw = light_white(white, frame.gain.is_some());
         // Lights seen by both probes, placed in 3-D and carried to this frame.
@@ -999,6 +1114,7 @@ fn predict_held(
             frame: frame.pose,
             floor: white,
             near,
+            witnesses,
         });
         // What the probes measured, for the ledger: each probe's light above
         // the white point and its peak, found once.

@@ -9,7 +9,7 @@ mod surface;
 mod view;
 
 pub use surface::{fit_surface, Surface};
-pub use view::{LightView, NearLight, SkyView};
+pub use view::{LightView, NearLight, SkyView, Witness};
 
 use super::{components, FrameLight, FusionParams};
 use crate::image::{luminance, HdrImage};

@@ -443,6 +443,7 @@ fn a_near_lamp_a_probe_sees_is_not_a_far_source_where_the_frame_does_not_see_it(
         frame,
         floor: 1.0,
         near,
+        witnesses: &[],
     };
     // With nothing placed the lamp is taken for a far source.
     assert!(sky(Vec::new()).radiance(d).is_some_and(|c| c[1] > 500.0));
@@ -491,12 +492,178 @@ fn a_lamp_hidden_from_the_frame_is_no_far_source_there_though_its_ray_meets_it()
         frame,
         floor: 1.0,
         near: vec![ball],
+        witnesses: &[],
     };
     assert!(sky.radiance(d).is_some_and(|c| c[1] > 500.0));
     assert_eq!(sky.radiance_past(d, &[ball]), None);
     // Another direction is untouched.
     let aside = frame.world_from_camera.transpose() * Vec3::new(-1.0, 0.2, 0.1).normalize();
     assert_eq!(sky.radiance_past(aside, &[ball]), sky.radiance(aside));
+}
+
+/// The neighbouring frames witness the far sources: a lamp one probe sees past
+/// a corner, taken for a far source, is refused where every neighbour measured
+/// its direction unclipped, and kept while one neighbour saw it clipped; a sun
+/// every view sees stays.
+#[test]
+fn neighbours_that_measured_a_direction_unclipped_refuse_a_far_source_there() {
+    let lamp = Vec3::new(4.0, 3.0, 2.5);
+    let (w, h) = (256, 128);
+    let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+    let sun = Vec3::new(-1.0, 0.3, 0.4).normalize();
+    let lit = |pose: &Pose, x: usize, y: usize, lamp_seen: bool| -> [f32; 3] {
+        let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+        if d.dot(sun) > 0.999 {
+            [5e4; 3]
+        } else if lamp_seen && {
+            let v = lamp - pose.position;
+            let t = v.dot(d);
+            t > 0.0 && (v - t * d).length() <= 0.1
+        } {
+            [1000.0; 3]
+        } else {
+            [0.5; 3]
+        }
+    };
+    let img = HdrImage::from_fn(w, h, |x, y| lit(&probe, x, y, true));
+    let frame = upright(Vec3::new(0.2, -0.1, 1.5));
+    // Two neighbours 15 cm either side: one sees the lamp's direction as a
+    // dim wall, the other (with `clipped`) as clipped.
+    let neighbour = |dx: f32, clipped: bool| {
+        let pose = upright(Vec3::new(0.2 + dx, -0.1, 1.5));
+        let dl = (lamp - probe.position).normalize();
+        let img = HdrImage::from_fn(w, h, |x, y| {
+            let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+            if clipped && d.dot(dl) > 0.995 {
+                [1.0; 3]
+            } else {
+                lit(&pose, x, y, false).map(|c| c.min(1.0))
+            }
+        });
+        (img, pose)
+    };
+    let sky = |witnesses: &[(HdrImage, Pose)]| -> (Option<[f32; 3]>, Option<[f32; 3]>) {
+        let witnesses: Vec<Witness> = witnesses
+            .iter()
+            .map(|(radiance, pose)| Witness::new(radiance, 1.0, *pose))
+            .collect();
+        let view = SkyView {
+            probes: vec![(&img, &probe)],
+            frame,
+            floor: 1.0,
+            near: Vec::new(),
+            witnesses: &witnesses,
+        };
+        let to_cam = frame.world_from_camera.transpose();
+        (
+            view.radiance(to_cam * (lamp - probe.position).normalize()),
+            view.radiance(to_cam * sun),
+        )
+    };
+    // No witnesses: the lamp is taken for a far source, as before.
+    let (l, s) = sky(&[]);
+    assert!(l.is_some_and(|c| c[1] > 500.0), "{l:?}");
+    assert!(s.is_some_and(|c| c[1] > 1e4), "{s:?}");
+    // Both neighbours measured the lamp's direction unclipped: refused; the sun
+    // every neighbour saw clipped stays.
+    let (l, s) = sky(&[neighbour(-0.15, false), neighbour(0.15, false)]);
+    assert_eq!(l, None);
+    assert!(s.is_some_and(|c| c[1] > 1e4), "{s:?}");
+    // One neighbour saw it clipped: kept.
+    let (l, _) = sky(&[neighbour(-0.15, false), neighbour(0.15, true)]);
+    assert!(l.is_some_and(|c| c[1] > 500.0), "{l:?}");
+}
+
+/// A witness read from a frame's codes is the witness of its radiance.
+#[test]
+fn a_witness_from_codes_equals_the_witness_from_radiance() {
+    let (w, h) = (64, 32);
+    let codes = crate::image::SdrImage::from_vec(
+        w,
+        h,
+        (0..w * h * 3)
+            .map(|i| ((i * 37 + i / 5) % 256) as u8)
+            .collect(),
+    )
+    .unwrap();
+    // A gamma-like decode: code 250 at the white point 1.
+    let radiance: [f32; 256] = std::array::from_fn(|c| (c as f32 / 250.0).powf(2.2));
+    let lin = HdrImage::from_vec(
+        w,
+        h,
+        codes.data().iter().map(|&c| radiance[c as usize]).collect(),
+    )
+    .unwrap();
+    let pose = upright(Vec3::new(0.0, 0.0, 1.5));
+    let (a, b) = (
+        Witness::new(&lin, 1.0, pose),
+        Witness::from_codes(&codes, &radiance, 1.0, pose),
+    );
+    let (mut seen, mut open) = (0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let d = pose.world_from_camera * pixel_to_dir(x, y, w, h);
+            assert_eq!(a.unclipped(d), b.unclipped(d), "({x}, {y})");
+            seen += 1;
+            open += usize::from(a.unclipped(d));
+        }
+    }
+    assert!(open > 0 && open < seen, "{open} of {seen} unclipped");
+}
+
+mod witness_property {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// Whatever the direction and radiance of a probe's bright sample and
+        /// wherever the neighbours stand: with no witness it is a far source;
+        /// when every witness measured its direction unclipped it is refused;
+        /// when one witness saw it clipped it is kept.
+        #[test]
+        fn a_far_source_stands_or_falls_with_its_witnesses(
+            az in -3.1f32..3.1,
+            el in -1.2f32..1.2,
+            radiance in 10.0f32..1e5,
+            dx in -0.3f32..0.3,
+            dy in -0.3f32..0.3,
+        ) {
+            let (w, h) = (64, 32);
+            let src = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+            let probe = upright(Vec3::new(0.0, 0.0, 1.5));
+            let bright = |pose: &Pose, x: usize, y: usize| {
+                (pose.world_from_camera * pixel_to_dir(x, y, w, h)).dot(src) > 0.995
+            };
+            let img = HdrImage::from_fn(w, h, |x, y| {
+                if bright(&probe, x, y) { [radiance; 3] } else { [0.5; 3] }
+            });
+            let frame = upright(Vec3::new(dx, dy, 1.5));
+            let neighbour = |ox: f32, clipped: bool| {
+                let pose = upright(Vec3::new(dx + ox, dy, 1.5));
+                let img = HdrImage::from_fn(w, h, |x, y| {
+                    if clipped && bright(&pose, x, y) { [1.0; 3] } else { [0.5; 3] }
+                });
+                Witness::new(&img, 1.0, pose)
+            };
+            let look = |witnesses: &[Witness]| {
+                let view = SkyView {
+                    probes: vec![(&img, &probe)],
+                    frame,
+                    floor: 1.0,
+                    near: Vec::new(),
+                    witnesses,
+                };
+                view.radiance(frame.world_from_camera.transpose() * src)
+            };
+            let alone = look(&[]);
+            prop_assert!(alone.is_some_and(|c| c[1] > 0.5 * radiance), "{alone:?}");
+            let refused = look(&[neighbour(-0.15, false), neighbour(0.15, false)]);
+            prop_assert_eq!(refused, None);
+            let kept = look(&[neighbour(-0.15, false), neighbour(0.15, true)]);
+            prop_assert!(kept.is_some_and(|c| c[1] > 0.5 * radiance), "{kept:?}");
+        }
+    }
 }
 
 #[test]

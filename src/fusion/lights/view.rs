@@ -1,7 +1,7 @@
 //! A placed light and far sources as one frame sees them.
 
 use super::{Surface, View};
-use crate::image::{luminance, HdrImage};
+use crate::image::{luminance, HdrImage, SdrImage};
 use crate::scene::Pose;
 use crate::sphere::sample_dir;
 use glam::Vec3;
@@ -125,7 +125,87 @@ pub struct SkyView<'a> {
     ///
     /// [`PairLights::near`]: super::PairLights::near
     pub near: Vec<NearLight>,
+    /// Neighbouring frames of the walk, which see a far source in the same
+    /// world direction: where every one of them measured that direction
+    /// unclipped, a bright probe sample there is no far source (a lamp or a
+    /// patch one probe sees past a corner, not the sky).
+    pub witnesses: &'a [Witness],
 }
+
+/// A neighbouring frame as a witness of the far sources: which of its pixels
+/// clipped, and its pose. Holds one byte per pixel, not the frame's radiance.
+#[derive(Clone, Debug)]
+pub struct Witness {
+    clipped: Vec<bool>,
+    width: usize,
+    height: usize,
+    pose: Pose,
+}
+
+impl Witness {
+    /// The witness a frame with linearised `radiance`, white point `white` and
+    /// `pose` makes: a pixel is clipped when any channel is at 95% of the white
+    /// point or above (the clip code's neighbours bleed into it).
+    pub fn new(radiance: &HdrImage, white: f32, pose: Pose) -> Self {
+        let limit = CLIPPED_FRACTION * white;
+        let clipped = radiance
+            .data()
+            .chunks_exact(3)
+            .map(|p| p.iter().any(|&c| !(c < limit)))
+            .collect();
+        Witness {
+            clipped,
+            width: radiance.width(),
+            height: radiance.height(),
+            pose,
+        }
+    }
+
+    /// [`Witness::new`] for the frame `codes` whose code `c` has the radiance
+    /// `radiance[c]`, without the frame's radiance ever being made.
+    pub fn from_codes(codes: &SdrImage, radiance: &[f32; 256], white: f32, pose: Pose) -> Self {
+        let limit = CLIPPED_FRACTION * white;
+        let clips = radiance.map(|v| !(v < limit));
+        let clipped = codes
+            .data()
+            .chunks_exact(3)
+            .map(|p| p.iter().any(|&c| clips[c as usize]))
+            .collect();
+        Witness {
+            clipped,
+            width: codes.width(),
+            height: codes.height(),
+            pose,
+        }
+    }
+
+    /// True when this frame measured world direction `dw` unclipped: neither
+    /// the pixel there nor its eight neighbours clipped (a far source brighter
+    /// than the white point would clip them, pixel-sized or not; the
+    /// neighbours absorb the sampling's half-pixel).
+    pub fn unclipped(&self, dw: Vec3) -> bool {
+        let (w, h) = (self.width, self.height);
+        if w == 0 || h == 0 {
+            return false;
+        }
+        let (u, v) = crate::sphere::dir_to_uv(self.pose.world_from_camera.transpose() * dw);
+        let (cx, cy) = ((u * w as f32) as i64, (v * h as f32) as i64);
+        for dy in -1..=1i64 {
+            let yy = (cy + dy).clamp(0, h as i64 - 1) as usize;
+            for dx in -1..=1i64 {
+                let xx = (cx + dx).rem_euclid(w as i64) as usize;
+                if self.clipped[yy * w + xx] {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+}
+
+/// A channel this close to the white point counts as clipped for a witness (the
+/// clip code's neighbours bleed into it).
+const CLIPPED_FRACTION: f32 = 0.95;
 
 /// A light placed at a finite distance, as a ball: where it is (world axes) and
 /// how large it is (the radius that holds the solid angle a probe saw it fill).
@@ -161,10 +241,10 @@ impl SkyView<'_> {
     /// True when probe `j`'s sample in direction `d` (the frame's camera axes)
     /// counts in the far lookup ([`SkyView::radiance_past`] with `hidden`):
     /// brighter than `floor`, not a light placed nearby or hidden from the
-    /// frame.
+    /// frame, and not a direction the frame's neighbours all measured.
     pub fn bright(&self, j: usize, d: Vec3, hidden: &[NearLight]) -> bool {
         let dw = self.frame.world_from_camera * d;
-        self.far_sample(j, dw, hidden).is_some()
+        self.far_sample(j, dw, hidden).is_some() && !self.witnessed_unclipped(dw)
     }
 
     /// Probe `j`'s sample in world direction `dw` when it may show a far
@@ -187,6 +267,12 @@ impl SkyView<'_> {
         }
         let c = sample_dir(img, pose.world_from_camera.transpose() * dw);
         (luminance(c) > self.floor).then_some(c)
+    }
+
+    /// True when every neighbouring frame measured world direction `dw`
+    /// unclipped (no witnesses: false).
+    fn witnessed_unclipped(&self, dw: Vec3) -> bool {
+        !self.witnesses.is_empty() && self.witnesses.iter().all(|w| w.unclipped(dw))
     }
 
     /// [`SkyView::radiance`] without the probe samples whose ray meets one of
@@ -213,6 +299,9 @@ impl SkyView<'_> {
             let Some(c) = self.far_sample(j, dw, hidden) else {
                 continue;
             };
+            if self.witnessed_unclipped(dw) {
+                return None;
+            }
             let wt = 1.0 / (pose.position.distance(self.frame.position) as f64 + 1e-3);
             for k in 0..3 {
                 sum[k] += wt * c[k] as f64;
