@@ -123,7 +123,8 @@ impl Disc {
 pub(super) struct Far {
     /// Solid angle of fully clipped pixels the lookup covers, and of all of them.
     pub cover: (f64, f64),
-    /// True when the lookup covers enough of the region to be used.
+    /// True when the lookup is used in the region: it has a fully clipped
+    /// pixel ([`Far::covers`]).
     pub ok: bool,
     /// Median (by luminance) of the covered pixels' radiance.
     pub median: Option<[f32; 3]>,

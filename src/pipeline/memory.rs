@@ -61,18 +61,20 @@ fn gib(b: u64) -> String {
 }
 
 /// Frames in flight for `threads` worker threads and `frames` frames to
-/// compute of `frame_px` pixels each with `method`, with `probes` the bytes
-/// of the probes the run keeps loaded ([`probe_bytes`]), under `limit` bytes.
+/// compute of `frame_px` pixels each with `method`, with `probes_px` the
+/// pixels of the probes the run keeps loaded, matched against when `matches`
+/// ([`probe_bytes`]), under `limit` bytes.
 pub fn plan(
     method: Method,
     frame_px: u64,
-    probes: u64,
+    probes_px: u64,
+    matches: bool,
     threads: usize,
     frames: usize,
     limit: u64,
 ) -> Plan {
     let per_frame = bytes_per_pixel(method).saturating_mul(frame_px);
-    let fixed = BASE_BYTES.saturating_add(probes);
+    let fixed = BASE_BYTES.saturating_add(probe_bytes(matches, probes_px));
     let wanted = threads.clamp(1, frames.max(1));
     let fits = limit.saturating_sub(fixed) / per_frame.max(1);
     let workers = usize::try_from(fits).unwrap_or(usize::MAX).clamp(1, wanted);
@@ -178,7 +180,8 @@ mod tests {
         let p = plan(
             Method::Fusion,
             512 * 256,
-            probe_bytes(false, 5 * 512 * 256),
+            5 * 512 * 256,
+            false,
             8,
             20,
             4 * GIB,
@@ -186,20 +189,25 @@ mod tests {
         assert_eq!(p.workers, 8);
         assert!(p.note.is_none());
         // Never more workers than frames.
-        assert_eq!(plan(Method::Fusion, 512 * 256, 0, 8, 3, 4 * GIB).workers, 3);
+        assert_eq!(
+            plan(Method::Fusion, 512 * 256, 0, false, 8, 3, 4 * GIB).workers,
+            3
+        );
+    }
+
+    #[test]
+    fn probes_matched_against_count_their_display_copy() {
+        let px = 7776 * 3888;
+        let probes = 5 * 2048 * 1024;
+        let plain = plan(Method::Fusion, px, probes, false, 8, 20, 64 * GIB);
+        let matched = plan(Method::Fusion, px, probes, true, 8, 20, 64 * GIB);
+        assert_eq!(matched.peak - plain.peak, 12 * probes);
     }
 
     #[test]
     fn large_panoramas_run_fewer_frames_at_once_and_say_so() {
         let px = 7776 * 3888;
-        let p = plan(
-            Method::Fusion,
-            px,
-            probe_bytes(false, 5 * 512 * 256),
-            8,
-            20,
-            4 * GIB,
-        );
+        let p = plan(Method::Fusion, px, 5 * 512 * 256, false, 8, 20, 4 * GIB);
         assert!(p.workers >= 1 && p.workers < 8, "{p:?}");
         assert!(p.peak <= 4 * GIB, "{p:?}");
         assert!(p.note.as_deref().unwrap().contains("memory limit"));
@@ -211,7 +219,7 @@ mod tests {
     #[test]
     fn a_frame_larger_than_the_limit_runs_alone_with_a_warning() {
         let px = 30_000 * 15_000;
-        let p = plan(Method::Warp, px, 0, 2, 20, 4 * GIB);
+        let p = plan(Method::Warp, px, 0, true, 2, 20, 4 * GIB);
         assert_eq!(p.workers, 1);
         assert!(p.peak > p.limit);
         assert!(p.note.as_deref().unwrap().contains("--size"));

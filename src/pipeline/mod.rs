@@ -610,7 +610,8 @@ fn memory_plan(
     memory::plan(
         params.method,
         (fw as u64).saturating_mul(fh as u64),
-        memory::probe_bytes(matches, probes_px),
+        probes_px,
+        matches,
         threads,
         frames,
         limit,
