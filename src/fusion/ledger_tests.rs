@@ -99,12 +99,10 @@ fn a_partly_clipped_pixel_is_never_brighter_than_the_probes_measured() {
     assert!((booked - added_power(&on, &lin)).abs() < 1e-6);
 }
 
-#[test]
-fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
-    let (w, h) = (64, 32);
+/// A frame clipped in a 3x3 block at (11, 11) and an estimate holding 500
+/// there (0.2 elsewhere).
+fn lamp_at_11_with_500_estimated(w: usize, h: usize) -> (SdrImage, HdrImage, HdrImage) {
     let (sdr, lin) = super::tests::frame_with_lamp(w, h, (11, 11), 1);
-    // The estimate invents a lamp there; the probes saw their only light on the
-    // other side of the sphere.
     let est = HdrImage::from_fn(w, h, |x, y| {
         if (10..=12).contains(&x) && (10..=12).contains(&y) {
             [500.0; 3]
@@ -112,6 +110,15 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
             [0.2; 3]
         }
     });
+    (sdr, lin, est)
+}
+
+#[test]
+fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
+    let (w, h) = (64, 32);
+    let (sdr, lin, est) = lamp_at_11_with_500_estimated(w, h);
+    // The estimate invents a lamp there; the probes saw their only light on the
+    // other side of the sphere.
     let ev = Evidence {
         peak: [900.0; 3],
         seen: vec![SeenLight {
@@ -134,15 +141,8 @@ fn a_region_no_probe_saw_a_light_in_gets_nothing_added() {
 #[test]
 fn a_light_no_probe_placed_is_budgeted_what_the_nearest_probe_saw() {
     let (w, h) = (64, 32);
-    let (sdr, lin) = super::tests::frame_with_lamp(w, h, (11, 11), 1);
     // The estimate holds far more than either probe saw there.
-    let est = HdrImage::from_fn(w, h, |x, y| {
-        if (10..=12).contains(&x) && (10..=12).contains(&y) {
-            [500.0; 3]
-        } else {
-            [0.2; 3]
-        }
-    });
+    let (sdr, lin, est) = lamp_at_11_with_500_estimated(w, h);
     let seen_at = |x: usize, power: f64, probe: usize, at: f32| SeenLight {
         dir: pixel_to_dir(x, 11, w, h),
         power,
