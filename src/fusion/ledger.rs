@@ -291,10 +291,13 @@ pub(super) fn budgets(
     let cos_max = max_angle_deg.to_radians().cos();
     let probes = ev.seen.iter().map(|s| s.probe + 1).max().unwrap_or(0);
     let mut per = vec![vec![0.0f64; probes]; regions.len()];
-    // How far each probe stood from the frame.
-    let mut dist = vec![f32::INFINITY; probes];
+    // How far each probe stood from the frame; one whose distance is not
+    // finite (a broken pose) counts as the farthest.
+    let mut dist = vec![f32::MAX; probes];
     for s in &ev.seen {
-        dist[s.probe] = s.at.length();
+        dist[s.probe] = Some(s.at.length())
+            .filter(|d| d.is_finite())
+            .unwrap_or(f32::MAX);
     }
     for s in &ev.seen {
         // A cell of a light the frame measured where it would be is no
@@ -321,20 +324,19 @@ pub(super) fn budgets(
             // power by: the nearest probe that saw it, the least extrapolated
             // view, gives the budget; the most any probe saw bounds the
             // interval's upper end.
-            let mut nearest = (f32::INFINITY, 0.0f64);
-            for (k, &v) in seen.iter().enumerate() {
-                // A probe whose distance is not finite (a broken pose) is the
-                // farthest, whatever the order.
-                let d = if dist[k].is_finite() {
-                    dist[k]
-                } else {
-                    f32::MAX
-                };
-                if v > 0.0 && (d < nearest.0 || nearest.0.is_infinite()) {
-                    nearest = (d, v);
-                }
-            }
-            let nearest = nearest.1;
+            // (Ties: the first probe.)
+            let nearest = seen
+                .iter()
+                .zip(&dist)
+                .filter(|(&v, _)| v > 0.0)
+                .fold((f32::INFINITY, 0.0f64), |best, (&v, &d)| {
+                    if d < best.0 {
+                        (d, v)
+                    } else {
+                        best
+                    }
+                })
+                .1;
             let probes = seen.iter().copied().fold(0.0f64, f64::max);
             let target = if r.fill.target.is_finite() {
                 r.fill.target.max(0.0)

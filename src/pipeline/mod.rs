@@ -112,6 +112,16 @@ impl RunParams {
             m => m.probes_needed(),
         }
     }
+
+    /// Whether the run matches features against the probes: the warp and
+    /// hybrid methods, as the method or as fusion's base.
+    pub fn matches_features(&self) -> bool {
+        match self.method {
+            Method::Warp | Method::Hybrid => true,
+            Method::Fusion => matches!(self.fusion_base, Method::Warp | Method::Hybrid),
+            Method::Flow => false,
+        }
+    }
 }
 
 impl RunParams {
@@ -602,16 +612,11 @@ fn memory_plan(
         })
         .fold(0u64, u64::saturating_add);
     let limit = params.memory_limit.unwrap_or_else(memory::default_limit);
-    // The warp and hybrid methods match features against the probes, also as
-    // fusion's base.
-    let matching = |m: Method| matches!(m, Method::Warp | Method::Hybrid);
-    let matches = matching(params.method)
-        || (params.method == Method::Fusion && matching(params.fusion_base));
     memory::plan(
         params.method,
         (fw as u64).saturating_mul(fh as u64),
         probes_px,
-        matches,
+        params.matches_features(),
         threads,
         frames,
         limit,

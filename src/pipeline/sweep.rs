@@ -65,24 +65,6 @@ fn uses_flow(p: &RunParams) -> bool {
     }
 }
 
-/// Whether the method runs the warp method's feature matching.
-fn uses_warp(p: &RunParams) -> bool {
-    match p.method {
-        Method::Warp | Method::Hybrid => true,
-        Method::Fusion => matches!(p.fusion_base, Method::Warp | Method::Hybrid),
-        Method::Flow => false,
-    }
-}
-
-fn method_name(m: Method) -> &'static str {
-    match m {
-        Method::Warp => "warp",
-        Method::Flow => "flow",
-        Method::Hybrid => "hybrid",
-        Method::Fusion => "fusion",
-    }
-}
-
 /// The variants of `base` that the sweep measures: every method; panorama widths
 /// 256 to 2048 for the base method and for warp and flow; for the warp method's
 /// matching (on `base` if it matches features, else on warp) yaw rotations 1 to 24,
@@ -92,7 +74,7 @@ fn method_name(m: Method) -> &'static str {
 pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
     let mut pts = vec![SweepPoint {
         axis: "base".into(),
-        value: method_name(base.method).into(),
+        value: base.method.name().into(),
         params: base.clone(),
     }];
     let mut add = |axis: &str, value: String, params: RunParams| {
@@ -106,7 +88,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
         if m != base.method {
             add(
                 "method",
-                method_name(m).into(),
+                m.name().into(),
                 RunParams {
                     method: m,
                     ..base.clone()
@@ -130,7 +112,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
             }
             add(
                 "size",
-                format!("{}x{} {}", size.0, size.1, method_name(m)),
+                format!("{}x{} {}", size.0, size.1, m.name()),
                 RunParams {
                     method: m,
                     size: Some(size),
@@ -139,7 +121,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
             );
         }
     }
-    let warp_base = if uses_warp(base) {
+    let warp_base = if base.matches_features() {
         base.clone()
     } else {
         RunParams {
@@ -147,7 +129,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
             ..base.clone()
         }
     };
-    let wm = method_name(warp_base.method);
+    let wm = warp_base.method.name();
     for steps in [1usize, 2, 4, 8, 24] {
         if steps != warp_base.warp.yaw_steps {
             let mut p = warp_base.clone();
@@ -177,7 +159,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
             ..base.clone()
         }
     };
-    let fm = method_name(flow_base.method);
+    let fm = flow_base.method.name();
     for preset in [FlowPreset::Ultrafast, FlowPreset::Fast, FlowPreset::Medium] {
         if preset != flow_base.flow.flow.preset {
             let mut p = flow_base.clone();
@@ -202,7 +184,7 @@ pub fn plan(base: &RunParams, frame_size: (usize, usize)) -> Vec<SweepPoint> {
             if m != base.fusion_base {
                 let mut p = base.clone();
                 p.fusion_base = m;
-                add("fusion_base", method_name(m).into(), p);
+                add("fusion_base", m.name().into(), p);
             }
         }
     }
@@ -311,7 +293,7 @@ pub fn to_csv(rows: &[SweepRow]) -> String {
             "{},{},{},{},{},{:.2},{:.2},{:.1},{},{:.4},{:.5},{:.6},{:.5},{:.5},{:.3},{},{}\n",
             r.axis,
             r.value.replace(',', ";"),
-            method_name(r.method),
+            r.method.name(),
             r.size.0,
             r.size.1,
             r.ms_per_frame,
@@ -399,7 +381,7 @@ pub fn plot(rows: &[SweepRow], scene: &str) -> Plot {
         let (pts, labels) = numbered(&|r: &SweepRow| r.method == m && !r.base);
         if !pts.is_empty() {
             series.push(Series {
-                name: method_name(m).into(),
+                name: m.name().into(),
                 points: pts,
                 line: false,
                 labels,
